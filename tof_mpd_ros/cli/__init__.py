@@ -1,0 +1,1 @@
+"""The ``tof-mpd`` command line: thin argparse shells over the library."""
