@@ -1,0 +1,1 @@
+"""The simulated robotic ToF cell: scenes, UR5e arm, AMCW ToF physics, structured light."""
