@@ -39,7 +39,7 @@ def check_array(
     if not isinstance(value, np.ndarray):
         try:
             value = np.asarray(value)
-        except Exception as err:  # noqa: BLE001 - any conversion failure is an input error
+        except Exception as err:  # any conversion failure is an input error
             raise error(f"{name}: expected an array, got {type(value).__name__}") from err
     if ndim is not None:
         allowed = (ndim,) if isinstance(ndim, int) else tuple(ndim)
@@ -50,7 +50,7 @@ def check_array(
         expected = tuple(shape)
         actual = value.shape[-len(expected):] if len(expected) <= value.ndim else value.shape
         if len(actual) != len(expected) or any(
-            e is not None and e != a for e, a in zip(expected, actual)
+            e is not None and e != a for e, a in zip(expected, actual, strict=True)
         ):
             shown = tuple("*" if e is None else e for e in expected)
             raise error(f"{name}: expected shape (..., {', '.join(map(str, shown))}), "
