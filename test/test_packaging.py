@@ -1,0 +1,100 @@
+"""The package installs both ways and its executables resolve the way `ros2 run` resolves them."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+NODE_EXECUTABLES = ("corrector", "collector", "sim_cell")
+ALGORITHM_PACKAGES = ("sim", "recordings", "training", "correction", "evaluation", "mismatch")
+
+
+def ros2_run_path(prefix_path: str, package: str, executable: str) -> Path:
+    """Resolve an executable exactly as `ros2 run` does: ament index -> prefix -> lib/<pkg>/."""
+    code = ("import sys; from ament_index_python.packages import get_package_prefix; "
+            f"print(get_package_prefix({package!r}))")
+    env = {**os.environ, "AMENT_PREFIX_PATH": prefix_path}
+    prefix = subprocess.run([sys.executable, "-c", code], env=env, check=True,
+                            capture_output=True, text=True).stdout.strip()
+    return Path(prefix) / "lib" / package / executable
+
+
+def run_help(executable: Path, env: dict[str, str] | None = None) -> str:
+    assert executable.is_file(), f"{executable} missing"
+    assert os.access(executable, os.X_OK), f"{executable} is not executable"
+    done = subprocess.run([str(executable), "--help"], env=env, capture_output=True, text=True,
+                          timeout=120)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+def test_package_xml_declares_the_ros_dependencies() -> None:
+    root = ET.parse(REPO / "package.xml").getroot()
+    assert root.get("format") == "3"
+    assert root.findtext("name") == "tof_mpd_ros"
+    exec_deps = {e.text for e in root.findall("exec_depend")}
+    assert {"rclpy", "sensor_msgs", "std_msgs", "geometry_msgs", "diagnostic_msgs"} <= exec_deps
+    assert root.find("export/build_type").text == "ament_python"
+
+
+def test_algorithm_modules_import_without_ros() -> None:
+    """Every algorithm package imports in an interpreter where rclpy cannot be imported."""
+    blocker = ("import sys, importlib.abc\n"
+               "class Block(importlib.abc.MetaPathFinder):\n"
+               "    def find_spec(self, name, path, target=None):\n"
+               "        if name.split('.')[0] in ('rclpy', 'sensor_msgs', 'rosidl_runtime_py'):\n"
+               "            raise ImportError('ROS blocked: ' + name)\n"
+               "sys.meta_path.insert(0, Block())\n"
+               "import pkgutil, importlib, tof_mpd_ros\n"
+               f"for sub in {ALGORITHM_PACKAGES!r}:\n"
+               "    pkg = importlib.import_module('tof_mpd_ros.' + sub)\n"
+               "    for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + '.'):\n"
+               "        importlib.import_module(m.name)\n"
+               "import tof_mpd_ros.cli.main\n")
+    done = subprocess.run([sys.executable, "-c", blocker], cwd=REPO, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+
+
+@pytest.mark.skipif(shutil.which("colcon", path=str(Path(sys.executable).parent)) is None,
+                    reason="colcon is installed by the 'test' extra")
+def test_colcon_build_installs_resolvable_executables(tmp_path: Path) -> None:
+    workspace = tmp_path / "ws"
+    (workspace / "src").mkdir(parents=True)
+    shutil.copytree(REPO, workspace / "src" / "tof_mpd_ros",
+                    ignore=shutil.ignore_patterns(".git", ".venv*", "build", "install", "log",
+                                                  "__pycache__", "*.egg-info", "out"))
+    colcon = Path(sys.executable).parent / "colcon"
+    done = subprocess.run([str(colcon), "build", "--packages-select", "tof_mpd_ros"],
+                          cwd=workspace, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    prefix = workspace / "install" / "tof_mpd_ros"
+    assert (prefix / "share/ament_index/resource_index/packages/tof_mpd_ros").is_file()
+    assert (prefix / "share/tof_mpd_ros/config/corrector.yaml").is_file()
+    site = next(prefix.glob("lib/python3*/site-packages"))
+    env = {**os.environ, "PYTHONPATH": str(site)}
+    for exe in NODE_EXECUTABLES:
+        path = ros2_run_path(str(prefix), "tof_mpd_ros", exe)
+        assert path.parent == prefix / "lib" / "tof_mpd_ros"
+        assert "usage:" in run_help(path, env)
+
+
+def test_pip_install_resolves_executables_like_ros2_run() -> None:
+    """In the virtual environment `pip install '.[ros]'` made, `ros2 run` finds every node."""
+    prefix = Path(sys.prefix)
+    marker = prefix / "share/ament_index/resource_index/packages/tof_mpd_ros"
+    if not marker.is_file():
+        pytest.skip("tof_mpd_ros is not pip-installed in this interpreter's prefix "
+                    "(the README's test command installs it)")
+    for exe in NODE_EXECUTABLES:
+        path = ros2_run_path(str(prefix), "tof_mpd_ros", exe)
+        assert path == prefix / "lib" / "tof_mpd_ros" / exe
+        assert "usage:" in run_help(path)
+    assert "usage: tof-mpd" in run_help(prefix / "bin" / "tof-mpd")
