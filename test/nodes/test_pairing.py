@@ -1,0 +1,87 @@
+"""Stamp pairing and the drop-oldest worker queue (no ROS needed)."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+
+from tof_mpd_ros.nodes.pairing import LatestQueueWorker, StampPairer
+
+MS = 1_000_000
+
+
+def test_pairs_within_tolerance_in_either_order() -> None:
+    pairer: StampPairer[str, str] = StampPairer(tolerance_ns=2 * MS)
+    assert pairer.add_left(100 * MS, "d0") is None
+    assert pairer.add_right(101 * MS, "a0") == (100 * MS, "d0", "a0")
+    assert pairer.add_right(133 * MS, "a1") is None
+    assert pairer.add_left(134 * MS, "d1") == (133 * MS, "d1", "a1")
+    assert pairer.stats.paired == 2 and pairer.stats.unmatched_dropped == 0
+
+
+def test_outside_tolerance_never_pairs_and_old_unmatched_are_counted() -> None:
+    pairer: StampPairer[str, str] = StampPairer(tolerance_ns=1 * MS)
+    pairer.add_left(100 * MS, "d0")           # its amplitude never arrives
+    assert pairer.add_right(105 * MS, "a1") is None
+    assert pairer.add_left(105 * MS, "d1") == (105 * MS, "d1", "a1")
+    assert pairer.stats.unmatched_dropped == 1  # d0 can no longer pair
+
+
+def test_out_of_order_stamps_are_dropped_and_counted() -> None:
+    pairer: StampPairer[str, str] = StampPairer(tolerance_ns=1 * MS)
+    pairer.add_left(200 * MS, "d1")
+    pairer.add_right(200 * MS, "a1")
+    assert pairer.add_left(150 * MS, "late") is None
+    assert pairer.stats.out_of_order_dropped == 1
+
+
+def test_history_bounds_memory() -> None:
+    pairer: StampPairer[int, int] = StampPairer(tolerance_ns=0, history=3)
+    for i in range(10):
+        pairer.add_left(i * MS, i)
+    assert pairer.stats.unmatched_dropped == 7
+
+
+def test_worker_drops_oldest_when_consumer_is_slow() -> None:
+    release = threading.Event()
+    seen: list[int] = []
+
+    def slow(item: int) -> None:
+        release.wait(5)
+        seen.append(item)
+
+    worker: LatestQueueWorker[int] = LatestQueueWorker(slow, maxsize=2)
+    worker.submit(0)                 # taken by the worker, blocks in slow()
+    time.sleep(0.05)
+    for i in range(1, 6):            # queue holds 2: items 1..3 are dropped, 4 and 5 kept
+        worker.submit(i)
+    release.set()
+    assert worker.drain(5)
+    worker.stop()
+    assert seen == [0, 4, 5]
+    assert worker.dropped == 3 and worker.processed == 3
+
+
+def test_worker_survives_a_failing_item() -> None:
+    errors: list[BaseException] = []
+
+    def process(item: int) -> None:
+        if item == 1:
+            raise ValueError("bad frame")
+
+    worker: LatestQueueWorker[int] = LatestQueueWorker(process, maxsize=4, on_error=errors.append)
+    for i in range(3):
+        worker.submit(i)
+    assert worker.drain(5)
+    worker.stop()
+    assert worker.processed == 2 and worker.failed == 1
+    assert isinstance(errors[0], ValueError)
+
+
+def test_invalid_configuration_is_rejected() -> None:
+    with pytest.raises(ValueError):
+        StampPairer(tolerance_ns=-1)
+    with pytest.raises(ValueError):
+        LatestQueueWorker(lambda item: None, maxsize=0)

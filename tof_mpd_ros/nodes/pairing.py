@@ -1,0 +1,151 @@
+"""Pair depth and amplitude images by stamp, and hand work to a worker through a bounded queue.
+
+Pure Python (no rclpy) so both pieces are unit-tested without ROS. ``message_filters`` is not
+installable from PyPI, and the corrector needs only a two-topic approximate-time pairing, so this
+is a small purpose-built replacement rather than a port.
+"""
+
+from __future__ import annotations
+
+import collections
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Generic, TypeVar
+
+T = TypeVar("T")
+U = TypeVar("U")
+
+
+@dataclass
+class PairingStats:
+    """Counters of what the pairer did with its input."""
+
+    paired: int = 0
+    unmatched_dropped: int = 0
+    out_of_order_dropped: int = 0
+
+
+@dataclass
+class StampPairer(Generic[T, U]):
+    """Approximate-time pairing of two streams (e.g. depth and amplitude images).
+
+    A message is matched with the closest-stamped message of the other stream within
+    ``tolerance_ns``. Messages older than the newest emitted pair are out of order and dropped;
+    unmatched messages are kept up to ``history`` per stream, then dropped (oldest first). Every
+    drop is counted in :attr:`stats`.
+    """
+
+    tolerance_ns: int
+    history: int = 8
+    stats: PairingStats = field(default_factory=PairingStats)
+    _left: collections.deque = field(init=False)
+    _right: collections.deque = field(init=False)
+    _last_emitted_ns: int = field(default=-1, init=False)
+
+    def __post_init__(self) -> None:
+        if self.tolerance_ns < 0 or self.history < 1:
+            raise ValueError("tolerance_ns must be >= 0 and history >= 1")
+        self._left = collections.deque()
+        self._right = collections.deque()
+
+    def add_left(self, stamp_ns: int, message: T) -> tuple[int, T, U] | None:
+        """Add a left-stream message; returns ``(stamp_ns, left, right)`` when a pair forms."""
+        return self._add(self._left, self._right, stamp_ns, message, left_first=True)
+
+    def add_right(self, stamp_ns: int, message: U) -> tuple[int, T, U] | None:
+        """Add a right-stream message; returns ``(stamp_ns, left, right)`` when a pair forms."""
+        return self._add(self._right, self._left, stamp_ns, message, left_first=False)
+
+    def _add(self, mine: collections.deque, other: collections.deque, stamp_ns: int,
+             message: object, *, left_first: bool) -> tuple | None:
+        if stamp_ns <= self._last_emitted_ns:
+            self.stats.out_of_order_dropped += 1
+            return None
+        best = min(range(len(other)), key=lambda i: abs(other[i][0] - stamp_ns), default=None)
+        if best is not None and abs(other[best][0] - stamp_ns) <= self.tolerance_ns:
+            other_stamp, other_message = other[best]
+            # Everything older than the match can no longer pair with anything newer.
+            for _ in range(best):
+                other.popleft()
+                self.stats.unmatched_dropped += 1
+            other.popleft()
+            while mine and mine[0][0] < stamp_ns:
+                mine.popleft()
+                self.stats.unmatched_dropped += 1
+            self._last_emitted_ns = max(stamp_ns, other_stamp)
+            self.stats.paired += 1
+            pair = (message, other_message) if left_first else (other_message, message)
+            return (min(stamp_ns, other_stamp), *pair)
+        mine.append((stamp_ns, message))
+        while len(mine) > self.history:
+            mine.popleft()
+            self.stats.unmatched_dropped += 1
+        return None
+
+
+class LatestQueueWorker(Generic[T]):
+    """A worker thread fed through a bounded drop-oldest queue.
+
+    The subscription callback calls :meth:`submit` (never blocks); the worker calls ``process``
+    on each item. When the queue is full the oldest item is dropped and counted, so a slow
+    consumer sheds load instead of building latency.
+    """
+
+    def __init__(self, process: Callable[[T], None], *, maxsize: int = 2,
+                 on_error: Callable[[BaseException], None] | None = None) -> None:
+        if maxsize < 1:
+            raise ValueError("maxsize must be >= 1")
+        self._process = process
+        self._on_error = on_error
+        self._queue: collections.deque[T] = collections.deque()
+        self._maxsize = maxsize
+        self._cond = threading.Condition()
+        self._stopping = False
+        self._busy = False
+        self.dropped = 0
+        self.processed = 0
+        self.failed = 0
+        self._thread = threading.Thread(target=self._run, name="tof_mpd_worker", daemon=True)
+        self._thread.start()
+
+    def submit(self, item: T) -> None:
+        with self._cond:
+            if len(self._queue) >= self._maxsize:
+                self._queue.popleft()
+                self.dropped += 1
+            self._queue.append(item)
+            self._cond.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._queue and not self._stopping:
+                    self._cond.wait()
+                if self._stopping and not self._queue:
+                    return
+                item = self._queue.popleft()
+                self._busy = True
+            try:
+                self._process(item)
+                self.processed += 1
+            except Exception as err:  # a bad frame must not kill the worker
+                self.failed += 1
+                if self._on_error is not None:
+                    self._on_error(err)
+            finally:
+                with self._cond:
+                    self._busy = False
+                    self._cond.notify_all()
+
+    def drain(self, timeout: float | None = None) -> bool:
+        """Wait until the queue is empty and the worker idle; False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: not self._queue and not self._busy, timeout)
+
+    def stop(self, timeout: float = 5.0) -> None:
+        """Finish queued items, then stop the thread."""
+        with self._cond:
+            self._stopping = True
+            self._cond.notify_all()
+        self._thread.join(timeout)

@@ -1,0 +1,111 @@
+"""Rigid transforms of the simulated cell and their unit conversions.
+
+A pose is a (4, 4) float64 homogeneous matrix ``T_a_b`` that maps coordinates in frame ``b`` to
+frame ``a`` (``p_a = T_a_b @ p_b``). Inside the simulator geometry is in **millimetres**; poses
+that face ROS (``ToFFrame.pose``, ``PoseStamped``, the UR5e kinematics) are in **metres**.
+:func:`pose_m_to_mm` and :func:`pose_mm_to_m` convert the translation only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..validation import check_array
+
+MM_PER_M = 1000.0
+
+
+def make_pose(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """Assemble a pose.
+
+    Args:
+        rotation: (3, 3) float rotation matrix.
+        translation: (3,) float translation (any length unit; the pose keeps it).
+
+    Returns:
+        (4, 4) float64 homogeneous transform.
+    """
+    pose = np.eye(4)
+    pose[:3, :3] = rotation
+    pose[:3, 3] = translation
+    return pose
+
+
+def invert_pose(pose: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid (4, 4) transform, computed as ``[R^T, -R^T t]`` (exact, no solve)."""
+    p = check_array("pose", pose, ndim=2, shape=(4, 4), dtype_kind="fiu")
+    rot = p[:3, :3].T
+    return make_pose(rot, -rot @ p[:3, 3])
+
+
+def pose_m_to_mm(pose_m: np.ndarray) -> np.ndarray:
+    """(4, 4) pose with translation in metres -> same pose with translation in millimetres."""
+    p = check_array("pose_m", pose_m, ndim=2, shape=(4, 4), dtype_kind="fiu").astype(np.float64)
+    p[:3, 3] *= MM_PER_M
+    return p
+
+
+def pose_mm_to_m(pose_mm: np.ndarray) -> np.ndarray:
+    """(4, 4) pose with translation in millimetres -> same pose with translation in metres."""
+    p = check_array("pose_mm", pose_mm, ndim=2, shape=(4, 4), dtype_kind="fiu").astype(np.float64)
+    p[:3, 3] /= MM_PER_M
+    return p
+
+
+def rot_x(angle_rad: float) -> np.ndarray:
+    """(3, 3) rotation about x by ``angle_rad`` (right-handed)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[1.0, 0.0, 0.0], [0.0, c, -s], [0.0, s, c]])
+
+
+def rot_y(angle_rad: float) -> np.ndarray:
+    """(3, 3) rotation about y by ``angle_rad`` (right-handed)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rot_z(angle_rad: float) -> np.ndarray:
+    """(3, 3) rotation about z by ``angle_rad`` (right-handed)."""
+    c, s = np.cos(angle_rad), np.sin(angle_rad)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def look_at(eye: np.ndarray, target: np.ndarray, roll_rad: float = 0.0) -> np.ndarray:
+    """Camera-to-world pose of an optical-frame camera at ``eye`` looking at ``target``.
+
+    The optical frame is x right, y down, z forward (REP 103). With ``roll_rad = 0`` the image
+    x axis is horizontal (perpendicular to world z); ``roll_rad`` then turns the camera about its
+    optical axis (an in-plane rotation of the image).
+
+    Args:
+        eye: (3,) camera centre in world coordinates (any length unit, kept in the pose).
+        target: (3,) point the optical axis passes through, same unit.
+        roll_rad: in-plane rotation about the optical axis, radians.
+
+    Returns:
+        (4, 4) float64 camera-to-world transform.
+    """
+    eye = np.asarray(eye, dtype=np.float64)
+    z = np.asarray(target, dtype=np.float64) - eye
+    z /= np.linalg.norm(z)
+    # Any horizontal x works; choose one that is well defined even when looking straight down.
+    ref = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(z, ref) if abs(z[2]) < 0.99 else np.cross(ref, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    rot = np.stack([x, y, z], axis=1) @ rot_z(roll_rad)
+    return make_pose(rot, eye)
+
+
+def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a pose to points.
+
+    Args:
+        pose: (4, 4) transform ``T_a_b``.
+        points: (..., 3) points in frame ``b``, same length unit as the pose translation.
+
+    Returns:
+        (..., 3) float64 points in frame ``a``.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    return p @ pose[:3, :3].T + pose[:3, 3]

@@ -1,0 +1,58 @@
+"""What an effect may read while one frame renders."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ...camera import Intrinsics
+from ..surface import SurfaceImage
+
+
+@dataclass(frozen=True)
+class CameraMotion:
+    """Instantaneous camera motion during a frame, in the camera optical frame.
+
+    Attributes:
+        linear_mm_s: (3,) float64 velocity of the optical centre in mm/s.
+        angular_rad_s: (3,) float64 angular velocity in rad/s.
+    """
+
+    linear_mm_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    angular_rad_s: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass
+class RenderContext:
+    """Per-frame state shared by the effects.
+
+    Attributes:
+        intrinsics: intrinsics of the output H x W pixel grid.
+        surface: pixel-resolution surface (one sample per pixel, after geometry effects); its
+            points, normals and albedo are the scene for light transport.
+        samples: the supersampled surface (``supersample`` samples per pixel and axis) the
+            footprint is integrated over; equal to ``surface`` when ``supersample == 1``.
+        supersample: samples per pixel and axis (1 when rendering from a reference).
+        mod_freq_hz: modulation frequency in Hz.
+        light_power: P in amplitude·mm².
+        rng: random generator for noise.
+        frame_index: index of the frame in its sequence (temperature drift).
+        motion: camera motion during the frame (time offset), or None when at rest.
+        true_range_mm: (H, W) float64 range of the pixel-centre surface, mm, NaN = no hit.
+        amplitude: (H, W) float64 measured amplitude, set before the ``range`` stage.
+        noise_params: parameters of the ``noise`` effect (also read by ``noise_model``).
+    """
+
+    intrinsics: Intrinsics
+    surface: SurfaceImage
+    samples: SurfaceImage
+    supersample: int
+    mod_freq_hz: float
+    light_power: float
+    rng: np.random.Generator
+    frame_index: int = 0
+    motion: CameraMotion | None = None
+    true_range_mm: np.ndarray | None = None
+    amplitude: np.ndarray | None = None
+    noise_params: dict = field(default_factory=dict)
