@@ -1,0 +1,154 @@
+"""The simulated cell: a ToF camera with its structured-light reference, as one capture call.
+
+:class:`SimCell` ties the pieces together — ray caster (:mod:`.raycast`), AMCW physics
+(:mod:`.tof`), structured-light fusion (:mod:`.structured_light`) and the graded checkerboard
+(:mod:`.checkerboard`) — into :class:`~tof_mpd_ros.frame.ToFFrame` captures. It is what the
+dataset generator, the ``sim_cell`` node and the simulated collector all call.
+
+Rendering window: the camera renders the recorded crop plus a margin on every side, so surfaces
+just outside the crop still send interreflected light into it, and then keeps the crop. Every
+capture of one camera uses the same window, so the fixed-pattern pixel errors are the same at
+the same sensor pixel in calibration captures and scene captures.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..camera import PAPER_CROP, Intrinsics
+from ..errors import SimulationError
+from ..frame import ToFFrame
+from .checkerboard import CheckerboardConfig, render_checkerboard
+from .poses import pose_mm_to_m
+from .raycast import render_surface
+from .scene import Scene
+from .structured_light import FusionConfig, StructuredLightConfig, reference_range
+from .tof import ToFConfig, render_tof
+from .tof.render import centre_samples
+
+
+@dataclass
+class CameraModel:
+    """The simulated ToF camera's image geometry.
+
+    Attributes:
+        sensor: intrinsics of the full sensor (DS325-like 320x240, ~74 deg HFOV).
+        crop: (width, height) of the recorded central window (the paper's 180x140).
+        margin_px: extra pixels rendered around the crop for interreflection, then dropped.
+        supersample: ray samples per pixel and axis (mixed pixels); odd keeps a centre ray.
+    """
+
+    sensor: Intrinsics = field(default_factory=Intrinsics.ds325)
+    crop: tuple[int, int] = PAPER_CROP
+    margin_px: int = 12
+    supersample: int = 3
+
+    def __post_init__(self) -> None:
+        w, h = self.crop
+        if w + 2 * self.margin_px > self.sensor.width or h + 2 * self.margin_px > \
+                self.sensor.height:
+            raise SimulationError(f"crop {w}x{h} with a {self.margin_px} px margin does not fit "
+                                  f"the {self.sensor.width}x{self.sensor.height} sensor")
+        if self.supersample < 1:
+            raise SimulationError(f"supersample must be >= 1, got {self.supersample}")
+
+    @property
+    def window(self) -> Intrinsics:
+        """Intrinsics of the rendered window (crop + margin)."""
+        w, h = self.crop
+        return self.sensor.crop(w + 2 * self.margin_px, h + 2 * self.margin_px)
+
+    @property
+    def intrinsics(self) -> Intrinsics:
+        """Intrinsics of the recorded crop."""
+        return self.sensor.crop(*self.crop)
+
+    def keep_crop(self, image: np.ndarray) -> np.ndarray:
+        """(h + 2m, w + 2m, ...) window image -> (h, w, ...) crop."""
+        m = self.margin_px
+        return image[m:image.shape[0] - m, m:image.shape[1] - m] if m else image
+
+
+@dataclass
+class SimCell:
+    """A simulated ToF camera (plus structured-light reference) in front of a scene.
+
+    Attributes:
+        camera: image geometry.
+        tof: AMCW physics configuration (nominal by default).
+        structured_light: the SL sensor; ``fusion`` its multi-scan fusion settings.
+    """
+
+    camera: CameraModel = field(default_factory=CameraModel)
+    tof: ToFConfig = field(default_factory=ToFConfig.nominal)
+    structured_light: StructuredLightConfig = field(default_factory=StructuredLightConfig)
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+
+    def capture(self, scene: Scene, camera_to_base_mm: np.ndarray, rng: np.random.Generator,
+                *, frame_index: int = 0, stamp_ns: int = 0,
+                with_reference: bool = True) -> ToFFrame:
+        """One ToF frame of ``scene`` from a camera pose, with the fused SL reference.
+
+        Args:
+            scene: the scene (base frame, mm).
+            camera_to_base_mm: (4, 4) ToF optical frame -> base frame, translation in mm.
+            rng: source of sensor noise (ToF and SL).
+            frame_index: position in the sequence (temperature drift).
+            stamp_ns: capture time, integer nanoseconds.
+            with_reference: also run the SL scans and fusion (the slow part).
+
+        Returns:
+            ToFFrame of the crop: radial range and amplitude, reference (NaN = missing), pose in
+            metres, the true albedo.
+        """
+        cam = self.camera
+        surface = render_surface(scene, camera_to_base_mm, cam.window.scaled(cam.supersample))
+        measurement = render_tof(surface, self.tof, rng, supersample=cam.supersample,
+                                 frame_index=frame_index)
+        reference = None
+        if with_reference:
+            reference = reference_range(scene, camera_to_base_mm, cam.intrinsics, rng,
+                                        self.structured_light, self.fusion)
+        albedo = centre_samples(surface, cam.supersample).albedo
+        return ToFFrame(range_mm=cam.keep_crop(measurement.range_mm),
+                        amplitude=cam.keep_crop(measurement.amplitude),
+                        intrinsics=cam.intrinsics, mod_freq_hz=self.tof.mod_freq_hz,
+                        reference_mm=reference, stamp_ns=stamp_ns,
+                        pose=pose_mm_to_m(camera_to_base_mm),
+                        albedo=cam.keep_crop(albedo))
+
+    def capture_checkerboard(self, board_to_camera_mm: np.ndarray, rng: np.random.Generator,
+                             *, board: CheckerboardConfig = CheckerboardConfig(),
+                             frame_index: int = 0, stamp_ns: int = 0) -> ToFFrame:
+        """A calibration capture: the graded checkerboard at a pose, reference = its true range.
+
+        Args:
+            board_to_camera_mm: (4, 4) board frame -> camera optical frame, mm.
+            rng: source of sensor noise.
+        """
+        cam = self.camera
+        surface = render_checkerboard(board_to_camera_mm, cam.window.scaled(cam.supersample),
+                                      board)
+        measurement = render_tof(surface, self.tof, rng, supersample=cam.supersample,
+                                 frame_index=frame_index)
+        centre = centre_samples(surface, cam.supersample)
+        # Pixels straddling the board edge mix board and nothing: not a clean reference.
+        truth = np.where(_interior(centre.object_id == 1), centre.range_mm, np.nan)
+        return ToFFrame(range_mm=cam.keep_crop(measurement.range_mm),
+                        amplitude=cam.keep_crop(measurement.amplitude),
+                        intrinsics=cam.intrinsics, mod_freq_hz=self.tof.mod_freq_hz,
+                        reference_mm=cam.keep_crop(truth).astype(np.float32),
+                        stamp_ns=stamp_ns, albedo=cam.keep_crop(centre.albedo))
+
+
+def _interior(mask: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels of ``mask`` whose 8 neighbours are in ``mask`` too."""
+    padded = np.pad(mask, 1, constant_values=False)
+    out = mask.copy()
+    h, w = mask.shape
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            out &= padded[1 + dy:1 + dy + h, 1 + dx:1 + dx + w]
+    return out
