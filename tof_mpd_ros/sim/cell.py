@@ -120,7 +120,7 @@ class SimCell:
                         albedo=cam.keep_crop(albedo))
 
     def capture_checkerboard(self, board_to_camera_mm: np.ndarray, rng: np.random.Generator,
-                             *, board: CheckerboardConfig = CheckerboardConfig(),
+                             *, board: CheckerboardConfig | None = None,
                              frame_index: int = 0, stamp_ns: int = 0) -> ToFFrame:
         """A calibration capture: the graded checkerboard at a pose, reference = its true range.
 
@@ -130,7 +130,7 @@ class SimCell:
         """
         cam = self.camera
         surface = render_checkerboard(board_to_camera_mm, cam.window.scaled(cam.supersample),
-                                      board)
+                                      board or CheckerboardConfig())
         measurement = render_tof(surface, self.tof, rng, supersample=cam.supersample,
                                  frame_index=frame_index)
         centre = centre_samples(surface, cam.supersample)
