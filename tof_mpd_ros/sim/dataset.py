@@ -117,26 +117,29 @@ def _jobs(spec: DatasetSpec) -> list[tuple[str, int]]:
             + [("test", i) for i in range(spec.n_test_scenes)])
 
 
-def _run_job(job: tuple[str, int], spec: DatasetSpec) -> SceneCapture:
-    return capture_scene(job[0], job[1], spec)
+def _run_job(job: tuple[str, int], spec: DatasetSpec, cell: SimCell | None) -> SceneCapture:
+    return capture_scene(job[0], job[1], spec, cell)
 
 
-def _run_calibration_chunk(chunk: tuple[int, int], spec: DatasetSpec) -> SceneCapture:
+def _run_calibration_chunk(chunk: tuple[int, int], spec: DatasetSpec,
+                           cell: SimCell | None) -> SceneCapture:
     start = time.perf_counter()
-    frames = capture_calibration(spec, chunk=chunk)
+    frames = capture_calibration(spec, cell, chunk=chunk)
     return SceneCapture("calibration", chunk[0], frames, [], [], time.perf_counter() - start)
 
 
-def iter_captures(spec: DatasetSpec, *, workers: int = 1) -> Iterator[SceneCapture]:
+def iter_captures(spec: DatasetSpec, *, workers: int = 1,
+                  cell: SimCell | None = None) -> Iterator[SceneCapture]:
     """Every scene (train, then test) and the calibration captures in chunks, in order.
 
     Args:
         spec: what to generate.
         workers: processes; 1 renders in this process.
+        cell: the simulated cell (None = the nominal one).
     """
     chunks = [(i, min(i + 50, spec.n_calibration)) for i in range(0, spec.n_calibration, 50)]
-    tasks: list[tuple[Callable, tuple]] = ([(_run_job, (job, spec)) for job in _jobs(spec)]
-                                           + [(_run_calibration_chunk, (c, spec))
+    tasks: list[tuple[Callable, tuple]] = ([(_run_job, (job, spec, cell)) for job in _jobs(spec)]
+                                           + [(_run_calibration_chunk, (c, spec, cell))
                                               for c in chunks])
     if workers <= 1:
         for fn, args in tasks:
@@ -149,7 +152,8 @@ def iter_captures(spec: DatasetSpec, *, workers: int = 1) -> Iterator[SceneCaptu
 
 
 def generate_dataset(out_dir: str | Path, spec: DatasetSpec, *, workers: int = 1,
-                     compression: str = "zstd", progress: bool = True) -> dict:
+                     compression: str = "zstd", progress: bool = True,
+                     cell: SimCell | None = None) -> dict:
     """Render the dataset into ``out_dir`` (which must not exist yet).
 
     Returns:
@@ -171,7 +175,7 @@ def generate_dataset(out_dir: str | Path, spec: DatasetSpec, *, workers: int = 1
         for writer in writers.values():
             writer.__enter__()
         with tqdm(total=total, desc="simulating cell", unit="scene", disable=not progress) as bar:
-            for capture in iter_captures(spec, workers=workers):
+            for capture in iter_captures(spec, workers=workers, cell=cell):
                 for frame in capture.frames:
                     writers[capture.split].write_frame(frame)
                 if capture.split != "calibration":
