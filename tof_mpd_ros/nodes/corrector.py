@@ -12,7 +12,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from .launch_args import node_parser, strip_ros_args
+from .ros_runtime import node_main
 
 DESCRIPTION = (
     "Subscribes to ToF depth and amplitude images, removes multipath distortion (calibration, "
@@ -22,20 +22,7 @@ DESCRIPTION = (
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if args is None else args)
-    node_parser("corrector", DESCRIPTION).parse_args(strip_ros_args(argv))
-    from ..errors import TofMpdError
-    from .ros_runtime import spin_node
-
-    try:
-        import rclpy
-
-        from .corrector_node import CorrectorNode
-
-        return spin_node(rclpy, CorrectorNode, argv)
-    except TofMpdError as err:
-        print(f"corrector: cannot start: {err}", file=sys.stderr)
-        return 2
+    return node_main("corrector", DESCRIPTION, "corrector_node", "CorrectorNode", args)
 
 
 if __name__ == "__main__":

@@ -18,20 +18,14 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
-from ..camera import Intrinsics
 from ..correction.depth_stream import DepthStreamCorrector
 from ..correction.weights import default_weights_path, load_weights
 from ..errors import TofMpdError
-from ..image_encoding import (
-    amplitude_to_float,
-    array_to_image_data,
-    depth_to_mm,
-    image_to_array,
-    mm_to_depth,
-)
+from ..image_encoding import amplitude_to_float, depth_to_mm, image_to_array, mm_to_depth
 from .pairing import LatestQueueWorker, StampPairer
 from .parameters import ParameterSpec as P
 from .parameters import declare
+from .ros_messages import camera_info_message, image_message, intrinsics_of, stamp_ns
 
 # The node's parameters; config/corrector.yaml mirrors these defaults (a test keeps them equal).
 PARAMETERS = (
@@ -106,14 +100,6 @@ class CorrectorStats:
             return values
 
 
-def stamp_ns(msg) -> int:
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
-
-def intrinsics_from(info: CameraInfo) -> Intrinsics:
-    k = info.k
-    return Intrinsics(float(k[0]), float(k[4]), float(k[2]), float(k[5]),
-                      int(info.width), int(info.height))
-
 class CorrectorNode(Node):
     def __init__(self) -> None:
         super().__init__("corrector")
@@ -184,7 +170,7 @@ class CorrectorNode(Node):
             depth_msg, amp_msg = pair.depth, pair.amplitude
             depth = depth_to_mm(self._decode(depth_msg), depth_msg.encoding)
             amplitude = amplitude_to_float(self._decode(amp_msg))
-            result = self.stream.correct(depth, amplitude, intrinsics_from(info))
+            result = self.stream.correct(depth, amplitude, intrinsics_of(info))
         except TofMpdError as err:
             self.stats.drop("bad_input", str(err))
             self.get_logger().warning(f"frame dropped: {err}", throttle_duration_sec=5.0)
@@ -196,30 +182,18 @@ class CorrectorNode(Node):
         return image_to_array(msg.encoding, msg.height, msg.width, msg.step,
                               bool(msg.is_bigendian), msg.data)
 
-    def _image(self, header, array: np.ndarray, encoding: str) -> Image:
-        step, data = array_to_image_data(array, encoding)
-        return Image(header=header, height=array.shape[0], width=array.shape[1],
-                     encoding=encoding, is_bigendian=0, step=step, data=data)
-
     def _publish(self, pair: _Pair, result, info: CameraInfo) -> None:
         header = pair.depth.header
         encoding = self.params["output_encoding"]
         if encoding == "input":
             encoding = pair.depth.encoding if pair.depth.encoding != "mono16" else "16UC1"
-        self.pub_depth.publish(self._image(header, mm_to_depth(result.depth_mm, encoding),
-                                           encoding))
-        self.pub_edges.publish(self._image(header, result.edges.astype(np.uint8) * 255,
-                                           "mono8"))
-        self.pub_confidence.publish(self._image(header, result.confidence, "32FC1"))
-        self.pub_info.publish(self._cropped_info(info, header, result.intrinsics))
-
-    def _cropped_info(self, info: CameraInfo, header, intr: Intrinsics) -> CameraInfo:
-        out = CameraInfo(header=header, width=intr.width, height=intr.height,
-                         distortion_model=info.distortion_model, d=list(info.d),
-                         r=list(info.r))
-        out.k = [intr.fx, 0.0, intr.cx, 0.0, intr.fy, intr.cy, 0.0, 0.0, 1.0]
-        out.p = [intr.fx, 0.0, intr.cx, 0.0, 0.0, intr.fy, intr.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
-        return out
+        depth = mm_to_depth(result.depth_mm, encoding)
+        self.pub_depth.publish(image_message(depth, encoding, header=header))
+        edges = result.edges.astype(np.uint8) * 255
+        self.pub_edges.publish(image_message(edges, "mono8", header=header))
+        self.pub_confidence.publish(image_message(result.confidence, "32FC1", header=header))
+        # The output is the processed crop: publish its intrinsics (distortion is not modelled).
+        self.pub_info.publish(camera_info_message(result.intrinsics, header=header))
 
     def _worker_error(self, err: BaseException) -> None:
         self.stats.drop("internal_error", repr(err))

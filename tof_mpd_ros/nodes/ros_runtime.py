@@ -31,3 +31,29 @@ def spin_node(rclpy, node_factory: Callable[[], object], argv: Sequence[str]) ->
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def node_main(prog: str, description: str, node_module: str, node_class: str,
+              args: Sequence[str] | None) -> int:
+    """Body of a node executable's ``main``: parse ``--help``, then start and spin the node.
+
+    The node module (and rclpy) is imported only after argument parsing, so ``--help`` works
+    quickly. A :class:`~tof_mpd_ros.errors.TofMpdError` at start-up (e.g. corrupt weights) is
+    one clear line and exit code 2.
+    """
+    import importlib
+    import sys
+
+    from ..errors import TofMpdError
+    from .launch_args import node_parser, strip_ros_args
+
+    argv = list(sys.argv[1:] if args is None else args)
+    node_parser(prog, description).parse_args(strip_ros_args(argv))
+    import rclpy
+
+    factory = getattr(importlib.import_module(f"{__package__}.{node_module}"), node_class)
+    try:
+        return spin_node(rclpy, factory, argv)
+    except TofMpdError as err:
+        print(f"{prog}: cannot start: {err}", file=sys.stderr)
+        return 2

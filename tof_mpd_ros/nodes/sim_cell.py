@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from .launch_args import node_parser, strip_ros_args
+from .ros_runtime import node_main
 
 DESCRIPTION = (
     "Publishes ToF depth/amplitude/CameraInfo and structured-light data from the simulated "
@@ -14,12 +14,7 @@ DESCRIPTION = (
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if args is None else args)
-    parser = node_parser("sim_cell", DESCRIPTION)
-    parser.parse_args(strip_ros_args(argv))
-    print("sim_cell: not yet available in this version (the node is being built; see the README "
-          "for what works today)", file=sys.stderr)
-    return 1
+    return node_main("sim_cell", DESCRIPTION, "sim_cell_node", "SimCellNode", args)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,54 @@
+"""Helpers for node tests: start node executables in their own processes, listen on loopback."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def node_env(domain_id: int) -> dict[str, str]:
+    """Environment for a node process: loopback-only DDS, its own domain and log directory."""
+    env = dict(os.environ)
+    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id),
+               PYTHONPATH=str(REPO) + os.pathsep + env.get("PYTHONPATH", ""))
+    env.setdefault("ROS_LOG_DIR", os.environ.get("ROS_LOG_DIR", "/tmp"))
+    return env
+
+
+def start_node(executable: str, params: dict[str, object], domain_id: int,
+               log_path: Path) -> subprocess.Popen:
+    """``python -m tof_mpd_ros.nodes.<executable> --ros-args -p k:=v ...``."""
+    args = [sys.executable, "-m", f"tof_mpd_ros.nodes.{executable}", "--ros-args"]
+    for key, value in params.items():
+        text = str(value).lower() if isinstance(value, bool) else str(value)
+        args += ["-p", f"{key}:={text}"]
+    log = open(log_path, "w")  # noqa: SIM115 - closed with the process by the caller's fixture
+    return subprocess.Popen(args, env=node_env(domain_id), stdout=log, stderr=subprocess.STDOUT)
+
+
+def stop_node(process: subprocess.Popen, timeout: float = 10.0) -> int:
+    """SIGINT (like Ctrl-C), then kill if it does not exit."""
+    if process.poll() is None:
+        process.send_signal(2)
+        try:
+            process.wait(timeout)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(5)
+    return process.returncode
+
+
+def spin_until(node, executor, condition: Callable[[], bool], timeout: float) -> bool:
+    """Spin ``executor`` until ``condition()`` holds or ``timeout`` seconds pass."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        executor.spin_once(timeout_sec=0.05)
+        if condition():
+            return True
+    return condition()

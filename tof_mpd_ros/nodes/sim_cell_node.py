@@ -1,0 +1,180 @@
+"""The sim_cell node class: the simulated cell's ToF camera and structured-light sensor on topics.
+
+Frames are rendered on a worker thread (a multipath frame takes about a second) and published by
+a timer at ``rate_hz`` with fresh stamps. Without an arm, the node cycles through frames of a
+viewpoint plan rendered at start-up; when the arm's TCP pose arrives on ``tcp_pose_topic`` (the
+collector publishes it while it drives the simulated or real arm), the node renders from that
+pose and publishes nothing stale in between, so every frame stamped after a pose message was
+rendered at that pose.
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+from geometry_msgs.msg import PoseStamped
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import CameraInfo, Image
+
+from ..arm.ur_pose import pose_vector_to_matrix
+from ..camera import Intrinsics
+from ..frame import ToFFrame
+from ..image_encoding import mm_to_depth
+from ..sim.cell import CameraModel, SimCell
+from ..sim.dataset import scene_rng
+from ..sim.poses import pose_m_to_mm
+from ..sim.scene import make_scene
+from ..sim.viewpoints import ViewpointConfig, plan_viewpoints
+from .parameters import ParameterSpec as P
+from .parameters import declare
+from .ros_messages import camera_info_message, image_message, pose_matrix
+
+# The node's parameters; config/sim_cell.yaml mirrors these defaults (a test keeps them equal).
+PARAMETERS = (
+    P("rate_hz", 30.0, "Publication rate of ToF frames.", min_value=0.1, max_value=200.0),
+    P("seed", 0, "Seed of the scene, the plan and the sensor noise.", read_only=True),
+    P("split", "test", "Object-library half the scene is drawn from.",
+      choices=("train", "test"), read_only=True),
+    P("scene", 0, "Scene index (with seed and split, the same scene as `tof-mpd sim dataset`).",
+      min_value=0, max_value=100000, read_only=True),
+    P("views", 3, "Plan views rendered at start-up and cycled until an arm pose arrives.",
+      min_value=1, max_value=18, read_only=True),
+    P("follow_arm", True, "Render from the TCP pose on tcp_pose_topic when it arrives."),
+    P("tcp_pose_topic", "/arm/tcp_pose", "TCP (flange) pose in the base frame, metres.",
+      read_only=True),
+    P("hand_eye", [0.0, 0.0, 0.06, 0.0, 0.0, 0.0], "Camera pose in the flange frame as a UR "
+      "pose vector [x y z rx ry rz] (metres, axis-angle).", read_only=True),
+    P("depth_topic", "/tof/depth/image_raw", "ToF z-depth, 32FC1 metres (REP 118).",
+      read_only=True),
+    P("amplitude_topic", "/tof/amplitude/image_raw", "ToF amplitude, 32FC1.", read_only=True),
+    P("camera_info_topic", "/tof/camera_info", "ToF CameraInfo.", read_only=True),
+    P("reference_topic", "/sl/depth/image_raw", "Fused structured-light reference in the ToF "
+      "frame, z-depth 32FC1 metres (NaN = missing).", read_only=True),
+    P("publish_reference", True, "Render and publish the structured-light reference.",
+      read_only=True),
+    P("crop_width", 180, "Width of the published ToF image.", min_value=8, max_value=296,
+      read_only=True),
+    P("crop_height", 140, "Height of the published ToF image.", min_value=8, max_value=216,
+      read_only=True),
+    P("frame_id", "tof_optical_frame", "frame_id of the published images.", read_only=True),
+)
+
+
+class SimCellNode(Node):
+    def __init__(self) -> None:
+        super().__init__("sim_cell")
+        self.params = declare(self, PARAMETERS)
+        p = self.params
+        self.cell = SimCell(camera=CameraModel(crop=(p["crop_width"], p["crop_height"])))
+        self.rng = np.random.default_rng([p["seed"], 7])
+        scene_random = scene_rng(p["seed"], p["split"], p["scene"])
+        self.scene = make_scene(p["split"], scene_random)
+        self.plan = plan_viewpoints(self.scene, scene_random, ViewpointConfig())
+        self.hand_eye_m = pose_vector_to_matrix(np.asarray(p["hand_eye"], dtype=np.float64))
+        qos = qos_profile_sensor_data
+        self.pub_depth = self.create_publisher(Image, p["depth_topic"], qos)
+        self.pub_amplitude = self.create_publisher(Image, p["amplitude_topic"], qos)
+        self.pub_info = self.create_publisher(CameraInfo, p["camera_info_topic"], qos)
+        self.pub_reference = self.create_publisher(Image, p["reference_topic"], qos)
+        self._lock = threading.Lock()
+        self._cycle: list[dict[str, Image | CameraInfo]] = []
+        self._current: dict[str, Image | CameraInfo] | None = None
+        self._tick = 0
+        self._render_request = threading.Event()
+        self._pending_pose_mm: np.ndarray | None = None
+        self._rendered_pose_mm: np.ndarray | None = None
+        self._stop = threading.Event()
+        self.frames_rendered = 0
+        self.create_subscription(PoseStamped, p["tcp_pose_topic"], self._on_tcp_pose, 10)
+        self._worker = threading.Thread(target=self._render_loop, daemon=True)
+        self._worker.start()
+        self.create_timer(1.0 / p["rate_hz"], self._publish)
+        self.get_logger().info(f"simulated cell: {p['split']} scene {p['scene']} (seed "
+                               f"{p['seed']}), {len(self.scene.objects)} objects, publishing "
+                               f"at {p['rate_hz']} Hz")
+
+    # -- rendering (worker thread) -------------------------------------------------------
+    def _render_loop(self) -> None:
+        for view in self.plan.viewpoints[:self.params["views"]]:
+            if self._stop.is_set():
+                return
+            messages = self._render(view.camera_to_base_mm)
+            with self._lock:
+                self._cycle.append(messages)
+        while not self._stop.is_set():
+            if not self._render_request.wait(0.1):
+                continue
+            with self._lock:
+                pose = self._pending_pose_mm
+                self._render_request.clear()
+            messages = self._render(pose)
+            with self._lock:
+                if self._pending_pose_mm is pose:  # no newer pose arrived meanwhile
+                    self._current = messages
+                    self._rendered_pose_mm = pose
+
+    def _render(self, camera_to_base_mm: np.ndarray) -> dict[str, Image | CameraInfo]:
+        frame = self.cell.capture(self.scene, camera_to_base_mm, self.rng,
+                                  with_reference=self.params["publish_reference"])
+        self.frames_rendered += 1
+        return self._messages(frame)
+
+    def _messages(self, frame: ToFFrame) -> dict[str, Image | CameraInfo]:
+        intr: Intrinsics = frame.intrinsics
+        fid = self.params["frame_id"]
+        depth_m = mm_to_depth(intr.radial_to_z(frame.range_mm), "32FC1")
+        out = {"depth": image_message(depth_m, "32FC1", fid),
+               "amplitude": image_message(frame.amplitude.astype(np.float32), "32FC1", fid),
+               "info": camera_info_message(intr, fid)}
+        if frame.reference_mm is not None:
+            ref_m = mm_to_depth(intr.radial_to_z(frame.reference_mm), "32FC1")
+            out["reference"] = image_message(ref_m, "32FC1", fid)
+        return out
+
+    # -- callbacks -----------------------------------------------------------------------
+    def _on_tcp_pose(self, msg: PoseStamped) -> None:
+        if not self.params["follow_arm"]:
+            return
+        camera_mm = pose_m_to_mm(pose_matrix(msg.pose) @ self.hand_eye_m)
+        with self._lock:
+            reference = self._pending_pose_mm if self._pending_pose_mm is not None else None
+            if reference is not None and _same_pose(reference, camera_mm):
+                return
+            self._pending_pose_mm = camera_mm
+            self._current = None  # never publish a frame rendered at the previous pose
+            self._render_request.set()
+
+    def _publish(self) -> None:
+        with self._lock:
+            if self._pending_pose_mm is not None:
+                messages = self._current
+            elif self._cycle:
+                messages = self._cycle[self._tick % len(self._cycle)]
+            else:
+                messages = None
+            self._tick += 1
+        if messages is None:
+            return
+        stamp = self.get_clock().now().to_msg()
+        for key, publisher in (("depth", self.pub_depth), ("amplitude", self.pub_amplitude),
+                               ("info", self.pub_info), ("reference", self.pub_reference)):
+            if key in messages:
+                messages[key].header.stamp = stamp
+                publisher.publish(messages[key])
+
+    def destroy_node(self) -> None:
+        self._stop.set()
+        self._worker.join(5.0)
+        super().destroy_node()
+
+
+def _same_pose(a_mm: np.ndarray, b_mm: np.ndarray, tol_mm: float = 0.5,
+               tol_rad: float = 1e-3) -> bool:
+    """Whether two (4, 4) poses (mm) are within ``tol_mm`` and ``tol_rad`` of each other."""
+    if np.linalg.norm(a_mm[:3, 3] - b_mm[:3, 3]) > tol_mm:
+        return False
+    cos = (np.trace(a_mm[:3, :3].T @ b_mm[:3, :3]) - 1.0) / 2.0
+    return float(np.arccos(np.clip(cos, -1.0, 1.0))) <= tol_rad
+
