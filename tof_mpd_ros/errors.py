@@ -38,3 +38,7 @@ class ArmError(TofMpdError):
 
 class MismatchError(TofMpdError):
     """The sim-vs-real mismatch analysis could not run on the given data."""
+
+
+class CaptureError(TofMpdError):
+    """A synchronised capture (ToF + reference + pose) could not be taken in time."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Sequence
 
-from .launch_args import node_parser, strip_ros_args
+from .ros_runtime import node_main
 
 DESCRIPTION = (
     "Drives a UR arm (ur_rtde or the simulated arm) through a viewpoint plan and records "
@@ -14,12 +14,7 @@ DESCRIPTION = (
 
 
 def main(args: Sequence[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if args is None else args)
-    parser = node_parser("collector", DESCRIPTION)
-    parser.parse_args(strip_ros_args(argv))
-    print("collector: not yet available in this version (the node is being built; see the README "
-          "for what works today)", file=sys.stderr)
-    return 1
+    return node_main("collector", DESCRIPTION, "collector_node", "CollectorNode", args)
 
 
 if __name__ == "__main__":
