@@ -28,8 +28,9 @@ def start_node(executable: str, params: dict[str, object], domain_id: int,
     for key, value in params.items():
         text = str(value).lower() if isinstance(value, bool) else str(value)
         args += ["-p", f"{key}:={text}"]
-    log = open(log_path, "w")  # noqa: SIM115 - closed with the process by the caller's fixture
-    return subprocess.Popen(args, env=node_env(domain_id), stdout=log, stderr=subprocess.STDOUT)
+    with open(log_path, "w") as log:  # the child keeps its own descriptor
+        return subprocess.Popen(args, env=node_env(domain_id), stdout=log,
+                                stderr=subprocess.STDOUT)
 
 
 def stop_node(process: subprocess.Popen, timeout: float = 10.0) -> int:
