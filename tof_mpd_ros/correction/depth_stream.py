@@ -57,7 +57,7 @@ class DepthStreamCorrector:
         self.model = model
         self.input_convention = input_convention
         self.device = device
-        self.crop_width, self.crop_height = model.crop
+        self.crop_height, self.crop_width = model.shape
 
     def correct(self, depth_mm: np.ndarray, amplitude: np.ndarray,
                 intrinsics: Intrinsics) -> StreamResult:

@@ -18,8 +18,9 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
+from ..correction.default_weights import default_weights_path
 from ..correction.depth_stream import DepthStreamCorrector
-from ..correction.weights import default_weights_path, load_weights
+from ..correction.weights import load_weights
 from ..errors import TofMpdError
 from ..image_encoding import amplitude_to_float, depth_to_mm, image_to_array, mm_to_depth
 from .pairing import LatestQueueWorker, StampPairer
