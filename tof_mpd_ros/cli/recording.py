@@ -1,0 +1,123 @@
+"""``tof-mpd recording info | import-npz | export-npz``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from typing import Any
+
+from ..recordings import RANGE_ENCODINGS, RecordingReader, export_npz, import_npz
+from ..recordings.reader import RecordingInfo
+
+
+def register(subparsers: Any) -> None:
+    """Add the ``recording`` command and its subcommands."""
+    parser = subparsers.add_parser(
+        "recording", help="inspect recordings; convert between recordings and .npz",
+        description="rosbag2 MCAP recordings (directory with metadata.yaml + .mcap) and the "
+                    ".npz interchange of SPEC §3.")
+    sub = parser.add_subparsers(dest="recording_command", metavar="SUBCOMMAND", required=True)
+
+    info = sub.add_parser(
+        "info", help="topics, types, counts, duration, size, range convention",
+        description="Reads a recording directory or .mcap file (summary section; a file left "
+                    "open by a crashed writer is scanned instead) and prints what `ros2 bag "
+                    "info` shows plus the range convention. Writes nothing. Takes well under a "
+                    "second for a closed file; a scan reads the whole file (~1 s per 500 MB).")
+    info.add_argument("path", help="recording directory or .mcap file")
+    info.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    info.set_defaults(func=_info)
+
+    imp = sub.add_parser(
+        "import-npz", help="write the frames of an .npz into a new recording",
+        description="Reads an interchange .npz (range_mm, amplitude, [reference_mm], fx fy cx "
+                    "cy mod_freq_hz, [stamp_ns], [pose]) and writes a new rosbag2 MCAP "
+                    "recording directory OUT. Refuses to overwrite unless --overwrite. "
+                    "Takes about 20-50 ms per 320x240 frame with zstd (less with --compression "
+                    "none).")
+    imp.add_argument("npz", help="input .npz")
+    imp.add_argument("out", help="recording directory to create")
+    imp.add_argument("--encoding", choices=RANGE_ENCODINGS, default="64FC1",
+                     help="range/reference image encoding (default 64FC1: lossless for "
+                          "float32 mm; 32FC1 m and 16UC1 mm are REP 118)")
+    imp.add_argument("--compression", choices=("zstd", "lz4", "none"), default="zstd",
+                     help="MCAP chunk compression (default zstd)")
+    imp.add_argument("--overwrite", action="store_true", help="replace an existing recording")
+    imp.add_argument("--json", action="store_true", help="print the result as JSON")
+    imp.set_defaults(func=_import)
+
+    exp = sub.add_parser(
+        "export-npz", help="write every frame of a recording to an .npz",
+        description="Reads a recording directory or .mcap file and writes its frames (radial "
+                    "range in mm, amplitude, reference, intrinsics, stamps, camera-to-base "
+                    "poses) to an interchange .npz. Refuses to overwrite unless --overwrite. "
+                    "Takes about 10 ms per 320x240 frame and holds all frames in memory.")
+    exp.add_argument("recording", help="recording directory or .mcap file")
+    exp.add_argument("out", help="output .npz")
+    exp.add_argument("--skip-bad", action="store_true",
+                     help="drop corrupt chunks and unbuildable frames (counted) instead of "
+                          "failing")
+    exp.add_argument("--overwrite", action="store_true", help="replace an existing file")
+    exp.add_argument("--json", action="store_true", help="print the result as JSON")
+    exp.set_defaults(func=_export)
+
+
+def _info(args: argparse.Namespace) -> int:
+    with RecordingReader(args.path) as reader:
+        info = reader.info()
+    if args.json:
+        print(json.dumps(info.as_dict(), indent=2))
+    else:
+        print(format_info(info))
+    return 0
+
+
+def format_info(info: RecordingInfo) -> str:
+    """A ``ros2 bag info``-like table."""
+    lines = [
+        f"Files:             {', '.join(f.name for f in info.files)}",
+        f"Bag size:          {_size(info.size_bytes)}",
+        "Storage id:        mcap" + ("" if info.closed else "  (not closed: recovered)"),
+        f"Duration:          {info.duration_ns / 1e9:.9f}s",
+        f"Start:             {info.start_ns / 1e9:.9f}",
+        f"End:               {info.end_ns / 1e9:.9f}",
+        f"Messages:          {info.message_count}",
+        f"Range convention:  {info.range_convention}",
+        "Topic information:",
+    ]
+    width = max((len(t.name) for t in info.topics), default=0)
+    lines += [f"  {t.name:<{width}}  {t.msgtype:<34} {t.count:>7}" for t in info.topics]
+    custom = {k: v for k, v in info.custom_data.items() if ".topic." not in k}
+    if custom:
+        lines.append("Custom data:")
+        lines += [f"  {k}: {v}" for k, v in custom.items()]
+    return "\n".join(lines)
+
+
+def _size(n: int) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB"):
+        if n < 1024 or unit == "GiB":
+            return f"{n:.1f} {unit}" if unit != "B" else f"{n} B"
+        n /= 1024  # type: ignore[assignment]
+    return f"{n} B"
+
+
+def _import(args: argparse.Namespace) -> int:
+    count = import_npz(args.npz, args.out, range_encoding=args.encoding,
+                       compression=args.compression, overwrite=args.overwrite)
+    _report(args, {"frames": count, "npz": args.npz, "recording": args.out,
+                   "encoding": args.encoding}, f"wrote {count} frames to {args.out}")
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    count = export_npz(args.recording, args.out, overwrite=args.overwrite,
+                       on_error="skip" if args.skip_bad else "raise")
+    _report(args, {"frames": count, "recording": args.recording, "npz": args.out},
+            f"wrote {count} frames to {args.out}")
+    return 0
+
+
+def _report(args: argparse.Namespace, result: dict[str, Any], text: str) -> None:
+    print(json.dumps(result) if args.json else text, file=sys.stdout)
