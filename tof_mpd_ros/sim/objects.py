@@ -130,16 +130,23 @@ class ObjectSpec:
         return np.array(normals), np.array(offsets)
 
 
+def _smaller(largest: float, rng: np.random.Generator) -> float:
+    """A random extent between MIN_ASPECT * largest and largest (mm)."""
+    return largest * rng.uniform(MIN_ASPECT, 1.0)
+
+
 def _draw_dims(kind: str, rng: np.random.Generator) -> tuple[tuple[float, float, float], float]:
     """Random extents (mm) with the largest in SIZE_RANGE_MM, and a prism apex offset (mm)."""
     largest = rng.uniform(*SIZE_RANGE_MM)
-    other = lambda: largest * rng.uniform(MIN_ASPECT, 1.0)  # noqa: E731 - two-line helper
     if kind == "sphere":
         return (largest, largest, largest), 0.0
     if kind == "cylinder":
-        diameter, height = (largest, other()) if rng.random() < 0.5 else (other(), largest)
+        if rng.random() < 0.5:
+            diameter, height = largest, _smaller(largest, rng)
+        else:
+            diameter, height = _smaller(largest, rng), largest
         return (diameter, diameter, height), 0.0
-    dims = [largest, other(), other()]
+    dims = [largest, _smaller(largest, rng), _smaller(largest, rng)]
     rng.shuffle(dims)
     apex = rng.uniform(-0.3, 0.3) * dims[0] if kind == "prism" else 0.0
     return (dims[0], dims[1], dims[2]), apex

@@ -103,6 +103,21 @@ class Scene:
         centres = [[o.x_mm, o.y_mm, o.z_mm + o.spec.height_mm / 2.0] for o in self.objects]
         return np.mean(np.asarray(centres), axis=0)
 
+    def as_dict(self) -> dict[str, object]:
+        """Plain-type description (JSON-ready) of the table and objects, mm and radians."""
+        table = self.table
+        return {
+            "split": self.split,
+            "table": {"height_mm": table.height_mm, "centre_xy_mm": list(table.centre_xy_mm),
+                      "half_extent_mm": list(table.half_extent_mm), "albedo": table.albedo,
+                      "material_id": table.material_id},
+            "objects": [{"scene_index": o.scene_index, "library_id": o.spec.library_id,
+                         "kind": o.spec.kind, "dims_mm": list(o.spec.dims_mm),
+                         "apex_offset_mm": o.spec.apex_offset_mm, "albedo": o.spec.albedo,
+                         "material_id": o.spec.material_id, "x_mm": o.x_mm, "y_mm": o.y_mm,
+                         "z_mm": o.z_mm, "yaw_rad": o.yaw_rad} for o in self.objects],
+        }
+
     def top_height_mm(self) -> float:
         """z (base frame, mm) of the highest object top; the table top when empty."""
         return max((o.z_mm + o.spec.height_mm for o in self.objects),
