@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import logging
+import multiprocessing as mp
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
@@ -145,7 +146,9 @@ def iter_captures(spec: DatasetSpec, *, workers: int = 1,
         for fn, args in tasks:
             yield fn(*args)
         return
-    with ProcessPoolExecutor(max_workers=workers) as pool:
+    # spawn, not fork: numba's threading layer in a parent that already rendered is not
+    # fork-safe.
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
         futures = [pool.submit(fn, *args) for fn, args in tasks]
         for future in futures:  # in submission order, so recordings are written in order
             yield future.result()
