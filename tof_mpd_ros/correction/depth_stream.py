@@ -1,8 +1,13 @@
-"""Correct a live depth/amplitude stream: conventions, crop and validation around ``correct``.
+"""Correct a live depth/amplitude stream: decoding, conventions, crop and validation around
+``correct``.
 
-The corrector node is a thin ROS shell over :class:`DepthStreamCorrector`: it decodes messages
-into millimetre arrays and intrinsics, calls :meth:`DepthStreamCorrector.correct`, and encodes the
-result. Everything here is plain numpy and testable without ROS.
+The corrector node is a thin ROS shell over this module: it hands over the fields of its
+``sensor_msgs/Image`` messages (:func:`decode_depth`, :func:`decode_amplitude`) and intrinsics,
+calls :meth:`DepthStreamCorrector.correct`, and encodes the result. Everything here is plain numpy
+and testable without ROS.
+
+Every rejected frame raises :class:`FrameRejected`, whose ``reason`` is one of
+:data:`DROP_REASONS`: the node counts drops under these keys on ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -13,10 +18,43 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputError
-from ..validation import check_array, check_same_shape
+from ..image_encoding import (
+    DEPTH_MM_PER_UNIT,
+    PIXEL_FORMATS,
+    amplitude_to_float,
+    depth_to_mm,
+    image_to_array,
+)
+from ..validation import check_array
 from .pipeline import CorrectionModel, correct
 
 CONVENTIONS = ("z", "radial")
+
+# Why a frame (or, for the pairing stage, one image) was dropped; the corrector node reports
+# ``dropped_<reason>`` counters on /diagnostics under exactly these keys.
+DROP_REASONS: dict[str, str] = {
+    "no_amplitude": "a depth image found no amplitude image within sync_tolerance_s",
+    "no_depth": "an amplitude image found no depth image within sync_tolerance_s",
+    "out_of_order": "an image stamped at or before the last paired stamp",
+    "queue_full": "the worker was busy; the oldest waiting pair was dropped",
+    "no_camera_info": "no CameraInfo received yet",
+    "bad_camera_info": "a CameraInfo with zero, negative or non-finite K or size",
+    "bad_encoding": "an encoding that is not a REP 118 depth (or amplitude) encoding",
+    "bad_image": "an image payload inconsistent with its height, width and step",
+    "size_mismatch": "depth, amplitude and CameraInfo sizes differ, or the crop does not fit",
+    "no_valid_pixel": "no valid (finite, > 0) pixel in the processed window",
+    "internal_error": "an unexpected exception while correcting (a bug: please report it)",
+}
+
+
+class FrameRejected(InputError):
+    """One input frame cannot be corrected; ``reason`` is a key of :data:`DROP_REASONS`."""
+
+    def __init__(self, reason: str, message: str) -> None:
+        if reason not in DROP_REASONS:
+            raise ValueError(f"unknown drop reason {reason!r}")
+        super().__init__(message)
+        self.reason = reason
 
 
 @dataclass
@@ -39,8 +77,55 @@ class StreamResult:
     valid_fraction: float
 
 
+def decode_depth(encoding: str, height: int, width: int, step: int, is_bigendian: bool,
+                 data: bytes | bytearray | memoryview | np.ndarray) -> np.ndarray:
+    """Decode the fields of a REP 118 depth image.
+
+    Returns:
+        (height, width) float32 depth in millimetres, NaN = invalid (0, NaN or inf in the
+        message).
+
+    Raises:
+        FrameRejected: ``bad_encoding`` (not 32FC1/64FC1 metres or 16UC1/mono16 millimetres) or
+            ``bad_image`` (payload size inconsistent with height, width and step).
+    """
+    if encoding not in DEPTH_MM_PER_UNIT:
+        raise FrameRejected("bad_encoding", f"depth encoding {encoding!r} is not a REP 118 "
+                            f"depth encoding; expected one of {sorted(DEPTH_MM_PER_UNIT)} "
+                            "(32FC1/64FC1 in metres, 16UC1/mono16 in millimetres)")
+    try:
+        raw = image_to_array(encoding, height, width, step, is_bigendian, data)
+    except InputError as err:
+        raise FrameRejected("bad_image", f"depth image: {err}") from err
+    return depth_to_mm(raw, encoding)
+
+
+def decode_amplitude(encoding: str, height: int, width: int, step: int, is_bigendian: bool,
+                     data: bytes | bytearray | memoryview | np.ndarray) -> np.ndarray:
+    """Decode the fields of an amplitude (active IR) image.
+
+    Returns:
+        (height, width) float32 amplitude in sensor units, NaN = invalid.
+
+    Raises:
+        FrameRejected: ``bad_encoding`` (not a single-channel encoding) or ``bad_image``.
+    """
+    if encoding not in PIXEL_FORMATS:
+        raise FrameRejected("bad_encoding", f"amplitude encoding {encoding!r} is not "
+                            f"supported; expected one of {sorted(PIXEL_FORMATS)}")
+    try:
+        raw = image_to_array(encoding, height, width, step, is_bigendian, data)
+    except InputError as err:
+        raise FrameRejected("bad_image", f"amplitude image: {err}") from err
+    return amplitude_to_float(raw)
+
+
 class DepthStreamCorrector:
     """Applies a :class:`CorrectionModel` to full camera frames.
+
+    The model's (H, W) is the processed window: the central crop of each input frame. Inputs in
+    z-depth are converted to radial range for the model and the output back to z-depth, per
+    pixel with the pinhole rays of the crop (lens distortion is not modelled).
 
     Args:
         model: the loaded correction model (its crop defines the processed window).
@@ -69,21 +154,31 @@ class DepthStreamCorrector:
             intrinsics: intrinsics of the H x W input images.
 
         Raises:
-            InputError: shapes differ, the crop does not fit, or the crop has no valid pixel.
+            FrameRejected: ``size_mismatch`` (depth, amplitude and intrinsics sizes differ, or
+                the crop does not fit) or ``no_valid_pixel`` (nothing to correct in the crop).
+            InputError: an array is not 2-D numeric.
         """
         depth_mm = check_array("depth_mm", depth_mm, ndim=2, dtype_kind="fiu")
         amplitude = check_array("amplitude", amplitude, ndim=2, dtype_kind="fiu")
-        check_same_shape(depth_mm=depth_mm, amplitude=amplitude)
+        if depth_mm.shape != amplitude.shape:
+            raise FrameRejected("size_mismatch", f"depth is {_wxh(depth_mm.shape)} but "
+                                f"amplitude is {_wxh(amplitude.shape)}")
         if depth_mm.shape != intrinsics.shape:
-            raise InputError(f"image is {depth_mm.shape[1]}x{depth_mm.shape[0]} but CameraInfo "
-                             f"says {intrinsics.width}x{intrinsics.height}")
-        rows, cols = intrinsics.crop_window(self.crop_width, self.crop_height)
+            raise FrameRejected("size_mismatch", f"images are {_wxh(depth_mm.shape)} but "
+                                f"CameraInfo says {_wxh(intrinsics.shape)}")
+        try:
+            rows, cols = intrinsics.crop_window(self.crop_width, self.crop_height)
+        except InputError as err:
+            raise FrameRejected("size_mismatch", f"the model's {self.crop_width}x"
+                                f"{self.crop_height} window does not fit: {err}") from err
         crop_intrinsics = intrinsics.crop(self.crop_width, self.crop_height)
         depth = depth_mm[rows, cols].astype(np.float32)
         amp = amplitude[rows, cols].astype(np.float32)
         valid = np.isfinite(depth) & (depth > 0) & np.isfinite(amp)
         if not valid.any():
-            raise InputError("no valid pixel in the processed window")
+            raise FrameRejected("no_valid_pixel", f"no valid pixel in the central "
+                                f"{self.crop_width}x{self.crop_height} window (all depth "
+                                "NaN, inf or 0, or amplitude not finite)")
         range_mm = (crop_intrinsics.z_to_radial(depth) if self.input_convention == "z"
                     else depth)
         result = correct(self.model, range_mm, amp, device=self.device)
@@ -92,3 +187,7 @@ class DepthStreamCorrector:
             out = crop_intrinsics.radial_to_z(out)
         return StreamResult(out.astype(np.float32), result.edges, result.confidence,
                             crop_intrinsics, float(valid.mean()))
+
+
+def _wxh(shape: tuple[int, ...]) -> str:
+    return f"{shape[1]}x{shape[0]} (W x H)"

@@ -12,11 +12,14 @@ For a pixel ``p`` with an ``P x P`` patch (P = 11) and ``M = P * P - 1`` neighbo
   ``[range_min_mm, range_max_mm)`` / ``[amplitude_min, amplitude_max)``; values outside fall in the
   first / last bin.
 
-Both x terms lie in [-0.5, 0.5]. A pixel is *valid* when its range and amplitude are finite and
-> 0. Invalid neighbours and neighbours outside the image contribute 0 (read as "same as the
-centre"); rows of invalid centres are all zero and flagged in the returned mask. Feature layout:
+The division by 2D / 2L is a multiplication by its float32 reciprocal (bit-identical in torch and
+numpy). Both x terms lie in [-0.5, 0.5]. A pixel is *valid* when its range and amplitude are
+finite and > 0. Invalid neighbours and neighbours outside the image contribute 0 (read as "same
+as the centre"); rows of invalid centres are all zero and flagged in the returned mask. Layout:
 ``[x_R (M) | x_A (M) | b_R (n_bins) | b_A (n_bins)]``, 280 columns for the paper's numbers; the
-boundary networks use the first ``2 M`` = 240.
+boundary networks use the first ``2 M`` = 240. :func:`encode_frame_columns` gives the same numbers
+in the layout of the fused inference path (offsets as rows, centre row kept at 0, bins as
+indices); training gathers patches of sampled pixels through the same :func:`encode_patches`.
 """
 
 from __future__ import annotations
@@ -123,31 +126,36 @@ def encode_patches(
     """Encode pixels from their patches (shared by whole-frame inference and training).
 
     Args:
-        range_patches: (N, P*P) float32 range in mm, row-major patch, NaN = invalid/outside.
-        log_amp_patches: (N, P*P) float32 natural-log amplitude, NaN = invalid/outside.
-        amplitude_centre: (N,) float32 linear amplitude of the centre pixel.
+        range_patches: (N, P*P) float32 range in mm, row-major patch, NaN = invalid/outside;
+            or a (..., P, P) window view whose leading dims flatten to N (no copy is made).
+        log_amp_patches: same layout, natural-log amplitude.
+        amplitude_centre: (N,) float32 linear amplitude of the centre pixels.
         config: encoding constants.
         boundary_only: return only ``[x_R x_A]`` (N, 2M) and skip the one-hot terms.
 
     Returns:
         (N, 2M + 2 n_bins) float32 features (or (N, 2M)); rows whose centre is NaN are zero.
     """
-    p2 = config.patch_size ** 2
-    c = p2 // 2
-    n = range_patches.shape[0]
-    width = config.n_boundary_features if boundary_only else config.n_features
-    out = range_patches.new_zeros((n, width))
     m = config.n_neighbours
-    _centred(range_patches, c, config.range_clip_mm, out[:, :m])
-    _centred(log_amp_patches, c, config.amplitude_log_clip, out[:, m:2 * m])
+    p = config.patch_size
+    rp = range_patches.reshape(-1, p, p) if range_patches.ndim == 2 else range_patches
+    lp = log_amp_patches.reshape(-1, p, p) if log_amp_patches.ndim == 2 else log_amp_patches
+    rc = rp[..., p // 2, p // 2].reshape(-1)
+    n = rc.shape[0]
+    width = config.n_boundary_features if boundary_only else config.n_features
+    out = rp.new_empty((n, width))      # every column is written below
+    _centred(rp, config.range_clip_mm, out[:, :m])
+    _centred(lp, config.amplitude_log_clip, out[:, m:2 * m])
     if not boundary_only:
-        rc = range_patches[:, c]
-        # The amplitude bin of an invalid centre must stay empty like its range bin.
-        ac = torch.where(torch.isnan(rc), rc, amplitude_centre)
-        _one_hot(rc, config.range_min_mm, config.range_max_mm, config.n_bins,
-                 out[:, 2 * m:2 * m + config.n_bins])
-        _one_hot(ac, config.amplitude_min, config.amplitude_max, config.n_bins,
-                 out[:, 2 * m + config.n_bins:])
+        nb = config.n_bins
+        out[:, 2 * m:].zero_()
+        ok = ~torch.isnan(rc)          # an invalid centre gets no bin at all
+        ones = ok[:, None].to(out.dtype)
+        out[:, 2 * m:2 * m + nb].scatter_(
+            1, centre_bins(rc, config.range_min_mm, config.range_max_mm, nb)[:, None], ones)
+        out[:, 2 * m + nb:].scatter_(
+            1, centre_bins(amplitude_centre, config.amplitude_min, config.amplitude_max,
+                           nb)[:, None], ones)
     return out
 
 
@@ -156,38 +164,65 @@ def f32(x: float) -> float:
     return float(np.float32(x))
 
 
-def _centred(patches: torch.Tensor, c: int, clip: float, out: torch.Tensor) -> None:
-    """Write clip(patch - centre, -clip, clip) / (2 clip) without the centre column into out."""
-    diff = patches - patches[:, c:c + 1]
+def _centred(patches: torch.Tensor, clip: float, out: torch.Tensor) -> None:
+    """Write clip(patch - centre, -clip, clip) / (2 clip) without the centre column into out.
+
+    Args:
+        patches: (..., P, P) (any strides), leading dims flattening to N.
+        clip: saturation of the difference.
+        out: (N, P*P - 1) destination view.
+    """
+    p = patches.shape[-1]
+    c = p * p // 2
+    # Explicit contiguous output: subtracting from a window view would inherit its odd strides.
+    diff = patches.new_empty(patches.shape)
+    torch.sub(patches, patches[..., p // 2, p // 2, None, None], out=diff)
+    diff = diff.view(-1, p * p)
     # Multiply by the float32 reciprocal (what torch does for a scalar divide anyway).
     diff = diff.clamp_(-f32(clip), f32(clip)).mul_(f32(0.5 / f32(clip))).nan_to_num_(0.0)
     out[:, :c] = diff[:, :c]
     out[:, c:] = diff[:, c + 1:]
 
 
-def _one_hot(values: torch.Tensor, lo: float, hi: float, n_bins: int, out: torch.Tensor) -> None:
-    """Set out[i, bin(values[i])] = 1; NaN values set nothing."""
+def centre_bins(values: torch.Tensor, lo: float, hi: float, n_bins: int) -> torch.Tensor:
+    """Uniform quantisation of ``values`` into ``n_bins`` intervals over [lo, hi).
+
+    Args:
+        values: (N,) float32.
+        lo, hi: interval; values outside fall into the first / last bin.
+        n_bins: number of intervals.
+
+    Returns:
+        (N,) int64 bin index in [0, n_bins); NaN maps to 0 (callers mask invalid pixels).
+    """
     pos = (values - f32(lo)) * f32(n_bins / (hi - lo))
-    ok = ~torch.isnan(pos)
-    idx = pos.nan_to_num(0.0).floor().clamp_(0, n_bins - 1).long()
-    out.scatter_(1, idx[:, None], ok[:, None].to(out.dtype))
+    return pos.nan_to_num_(0.0).floor_().clamp_(0, n_bins - 1).long()
 
 
-def frame_patches(plane: torch.Tensor, patch_size: int) -> torch.Tensor:
-    """All P x P patches of a NaN-padded plane.
+def frame_windows(plane: torch.Tensor, patch_size: int) -> torch.Tensor:
+    """All P x P patches of a plane, as a view of its NaN-padded copy.
 
     Args:
         plane: (B, H, W) float32.
         patch_size: odd P.
 
     Returns:
-        (B*H*W, P*P) float32, row-major over (b, y, x); outside-image entries are NaN.
+        (B, H, W, P, P) float32 view; outside-image entries are NaN.
     """
     half = patch_size // 2
-    b, h, w = plane.shape
     padded = tnf.pad(plane[:, None], (half, half, half, half), value=float("nan"))[:, 0]
-    windows = padded.unfold(1, patch_size, 1).unfold(2, patch_size, 1)  # (B, H, W, P, P)
-    return windows.reshape(b * h * w, patch_size * patch_size)
+    return padded.unfold(1, patch_size, 1).unfold(2, patch_size, 1)
+
+
+def _checked_pair(range_mm: np.ndarray | torch.Tensor, amplitude: np.ndarray | torch.Tensor,
+                  device: torch.device | str | None) -> tuple[torch.Tensor, torch.Tensor]:
+    """(B, H, W) float32 tensors of a (H, W) or (B, H, W) pair."""
+    r = _as_tensor(range_mm, device)
+    a = _as_tensor(amplitude, device)
+    if r.shape != a.shape or r.ndim not in (2, 3):
+        raise InputError(f"range_mm and amplitude must both be (H, W) or (B, H, W), got "
+                         f"{tuple(r.shape)} and {tuple(a.shape)}")
+    return (r[None], a[None]) if r.ndim == 2 else (r, a)
 
 
 def encode_frame(
@@ -214,15 +249,71 @@ def encode_frame(
     Raises:
         InputError: shapes differ or are not 2-D/3-D.
     """
-    r = _as_tensor(range_mm, device)
-    a = _as_tensor(amplitude, device)
-    if r.shape != a.shape or r.ndim not in (2, 3):
-        raise InputError(f"range_mm and amplitude must both be (H, W) or (B, H, W), got "
-                         f"{tuple(r.shape)} and {tuple(a.shape)}")
-    if r.ndim == 2:
-        r, a = r[None], a[None]
+    r, a = _checked_pair(range_mm, amplitude, device)
     planes_r, planes_la, valid = prepare_planes(r, a)
-    feats = encode_patches(frame_patches(planes_r, config.patch_size),
-                           frame_patches(planes_la, config.patch_size),
+    feats = encode_patches(frame_windows(planes_r, config.patch_size),
+                           frame_windows(planes_la, config.patch_size),
                            a.reshape(-1), config, boundary_only=boundary_only)
     return feats, valid
+
+
+@dataclass
+class ColumnEncoding:
+    """One frame's encoding in the column layout of the fused inference path.
+
+    The same numbers as :func:`encode_frame`, laid out for GEMMs without copies: patch offsets
+    are rows (the centre row is kept and is always 0, so the networks' first layers get a zero
+    weight there) and pixels are columns; the one-hot terms are given as bin indices.
+
+    Attributes:
+        x_range: (P*P, H*W) float32 x_R rows, centre row included.
+        x_amplitude: (P*P, H*W) float32 x_A rows, centre row included.
+        bin_range: (H*W,) int64 b_R bin index.
+        bin_amplitude: (H*W,) int64 b_A bin index.
+        valid: (H, W) bool validity of each centre pixel (rows of invalid pixels are zero,
+            their bins 0).
+    """
+
+    x_range: torch.Tensor
+    x_amplitude: torch.Tensor
+    bin_range: torch.Tensor
+    bin_amplitude: torch.Tensor
+    valid: torch.Tensor
+
+
+def _centred_columns(plane: torch.Tensor, patch_size: int, clip: float) -> torch.Tensor:
+    """(P*P, H*W) clip(q - p, -clip, clip) / (2 clip) of a NaN-marked (H, W) plane, NaN -> 0."""
+    half = patch_size // 2
+    padded = tnf.pad(plane[None, None], (half, half, half, half), value=float("nan"))
+    cols = tnf.unfold(padded, patch_size)[0]                 # (P*P, H*W), im2col
+    cols.sub_(plane.reshape(1, -1))
+    return cols.clamp_(-f32(clip), f32(clip)).mul_(f32(0.5 / f32(clip))).nan_to_num_(0.0)
+
+
+def encode_frame_columns(range_mm: np.ndarray | torch.Tensor,
+                         amplitude: np.ndarray | torch.Tensor, config: EncodingConfig, *,
+                         device: torch.device | str | None = None) -> list[ColumnEncoding]:
+    """Encode every pixel of one or B frames in the column layout (see :class:`ColumnEncoding`).
+
+    Args:
+        range_mm: (H, W) or (B, H, W) float calibrated radial range in mm, NaN = invalid.
+        amplitude: same shape, amplitude, NaN = invalid.
+        config: encoding constants.
+        device: torch device of the result.
+
+    Returns:
+        One :class:`ColumnEncoding` per frame.
+    """
+    r, a = _checked_pair(range_mm, amplitude, device)
+    planes_r, planes_la, valid = prepare_planes(r, a)
+    out = []
+    for i in range(r.shape[0]):
+        rc = planes_r[i].reshape(-1)
+        ac = torch.where(torch.isnan(rc), rc, a[i].reshape(-1))   # invalid centre -> bin 0
+        out.append(ColumnEncoding(
+            _centred_columns(planes_r[i], config.patch_size, config.range_clip_mm),
+            _centred_columns(planes_la[i], config.patch_size, config.amplitude_log_clip),
+            centre_bins(rc, config.range_min_mm, config.range_max_mm, config.n_bins),
+            centre_bins(ac, config.amplitude_min, config.amplitude_max, config.n_bins),
+            valid[i]))
+    return out

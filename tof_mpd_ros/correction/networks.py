@@ -14,6 +14,7 @@ Device and dtype follow the module (move it with ``.to``); inputs are cast to th
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import torch
@@ -55,7 +56,7 @@ class RangeRecoveryNet(nn.Module):
         if not target_clip_mm > 0:
             raise InputError(f"target_clip_mm must be > 0, got {target_clip_mm}")
         widths = (n_features, *hidden, 1)
-        self.layers = nn.ModuleList(nn.Linear(i, o) for i, o in zip(widths[:-1], widths[1:]))
+        self.layers = nn.ModuleList(nn.Linear(i, o) for i, o in itertools.pairwise(widths))
         self.n_features = n_features
         self.hidden = tuple(hidden)
         self.target_clip_mm = float(target_clip_mm)
@@ -171,3 +172,84 @@ def boundary_scores(features: torch.Tensor, nets: BoundaryNets) -> torch.Tensor:
         (N, 4) float edge probabilities in [0, 1].
     """
     return nets.probabilities(features)
+
+
+class FusedPatchNets:
+    """Inference-only fusion of F and the four G heads over the column encoding.
+
+    The first layers of F (its x_R / x_A part) and of the four G heads read the same patch, so
+    they are stacked into one ``(P*P, 40 + 4 * 40)`` weight per input plane: two GEMMs
+    (x_R rows, x_A rows) give all 200 first-layer pre-activations. F's one-hot terms
+    ``W b_R + W b_A`` become two row lookups. The centre rows of the column encoding get zero
+    weights. Numerically the same function as the modules (float32 up to summation order).
+
+    ``precision="bfloat16"`` runs the two big GEMMs in bfloat16 (inputs and weights rounded to
+    8 significant bits, accumulation in float32 by oneDNN): several times faster on CPUs with
+    AVX512-BF16/AMX, at an F error of a few hundredths of a millimetre.
+
+    Args:
+        range_net: the trained F.
+        boundary_nets: the trained G heads.
+        patch_size: P of the encoding.
+        n_bins: one-hot width of the encoding.
+        precision: ``"float32"`` or ``"bfloat16"``.
+    """
+
+    def __init__(self, range_net: RangeRecoveryNet, boundary_nets: BoundaryNets,
+                 patch_size: int, n_bins: int, precision: str = "float32") -> None:
+        if precision not in ("float32", "bfloat16"):
+            raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
+        m = patch_size * patch_size - 1
+        if range_net.n_features != 2 * m + 2 * n_bins or boundary_nets.n_features != 2 * m:
+            raise InputError(f"networks ({range_net.n_features}, {boundary_nets.n_features} "
+                             f"inputs) do not fit a {patch_size}x{patch_size}, {n_bins}-bin "
+                             "encoding")
+        dtype = torch.bfloat16 if precision == "bfloat16" else torch.float32
+        w_f = range_net.layers[0].weight.detach().float()
+        w_g = boundary_nets.first.weight.detach().float()
+        c = m // 2
+
+        def rows(w: torch.Tensor) -> torch.Tensor:   # (out, M) -> (P*P, out), zero centre row
+            return torch.cat([w[:, :c], w.new_zeros(w.shape[0], 1), w[:, c:]], 1).T
+
+        self.w_range = torch.cat([rows(w_f[:, :m]), rows(w_g[:, :m])], 1).to(dtype).contiguous()
+        self.w_amp = torch.cat([rows(w_f[:, m:2 * m]), rows(w_g[:, m:2 * m])], 1
+                               ).to(dtype).contiguous()
+        self.bias = torch.cat([range_net.layers[0].bias, boundary_nets.first.bias]).detach()
+        self.table_range = w_f[:, 2 * m:2 * m + n_bins].T.contiguous()   # (n_bins, 40)
+        self.table_amp = w_f[:, 2 * m + n_bins:].T.contiguous()
+        self.n_f = w_f.shape[0]
+        self.range_net, self.boundary_nets = range_net, boundary_nets
+        self.dtype = dtype
+
+    def __call__(self, x_range: torch.Tensor, x_amp: torch.Tensor, bin_range: torch.Tensor,
+                 bin_amp: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """F correction and G edge probabilities of N pixels.
+
+        Args:
+            x_range, x_amp: (P*P, N) float32 column encodings (centre row included).
+            bin_range, bin_amp: (N,) int64 one-hot bin indices.
+
+        Returns:
+            ``(correction_mm, edge_prob)``: (N,) float32 F(p) in mm and (N, 4) float32.
+        """
+        with torch.no_grad():
+            xr, xa = x_range.T.to(self.dtype), x_amp.T.to(self.dtype)
+            if self.dtype == torch.float32:
+                h = torch.addmm(self.bias, xr, self.w_range).addmm_(xa, self.w_amp)
+            else:   # bfloat16 products, summed in float32
+                h = torch.mm(xr, self.w_range).float().add_(torch.mm(xa, self.w_amp).float())
+                h.add_(self.bias)
+            h[:, :self.n_f].add_(self.table_range[bin_range]).add_(self.table_amp[bin_amp])
+            h.relu_()
+            x = h[:, :self.n_f]
+            layers = self.range_net.layers
+            for layer in layers[1:-1]:
+                x = torch.relu(layer(x))
+            correction = layers[-1](x)[:, 0] * self.range_net.target_clip_mm
+            g = self.boundary_nets
+            hg = h[:, self.n_f:].view(-1, g.n_heads, g.hidden[0]).transpose(0, 1)
+            hg = torch.relu(torch.baddbmm(g.b2, hg, g.w2))
+            logits = torch.baddbmm(g.b3, hg, g.w3)                       # (heads, N, 2)
+            probs = torch.sigmoid(logits[..., 1] - logits[..., 0]).T      # (N, heads)
+        return correction, probs

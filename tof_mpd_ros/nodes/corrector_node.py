@@ -2,6 +2,10 @@
 
 Subscriptions only pair messages and queue them; a worker thread decodes, corrects and publishes
 (bounded drop-oldest queue, every drop counted by reason and reported on ``/diagnostics``).
+
+Drop reasons are the keys of :data:`~tof_mpd_ros.correction.depth_stream.DROP_REASONS`. The
+pairing stage (``no_amplitude``, ``no_depth``, ``out_of_order``) counts *images*; every later
+stage counts depth/amplitude *pairs*.
 """
 
 from __future__ import annotations
@@ -11,22 +15,32 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
+from ..camera import Intrinsics
 from ..correction.default_weights import default_weights_path
-from ..correction.depth_stream import DepthStreamCorrector
+from ..correction.depth_stream import (
+    DROP_REASONS,
+    DepthStreamCorrector,
+    FrameRejected,
+    StreamResult,
+    decode_amplitude,
+    decode_depth,
+)
 from ..correction.weights import load_weights
-from ..errors import TofMpdError
-from ..image_encoding import amplitude_to_float, depth_to_mm, image_to_array, mm_to_depth
+from ..errors import InputError
+from ..image_encoding import mm_to_depth
 from .pairing import LatestQueueWorker, StampPairer
 from .parameters import ParameterSpec as P
 from .parameters import declare
-from .ros_messages import camera_info_message, image_message, intrinsics_of, stamp_ns
+from .ros_messages import cropped_camera_info, image_message, intrinsics_of, stamp_ns
 
 # The node's parameters; config/corrector.yaml mirrors these defaults (a test keeps them equal).
 PARAMETERS = (
@@ -55,53 +69,115 @@ PARAMETERS = (
       max_value=60.0, read_only=True),
 )
 
+# A stream silent for this long while depth images arrive is reported as missing.
+STALE_AFTER_S = 1.0
+# The worker waits this long for the first CameraInfo before dropping a pair.
+CAMERA_INFO_WAIT_S = 1.0
+# Each drop reason is logged at once, then at most every LOG_EVERY_S (with the count).
+LOG_EVERY_S = 5.0
+
 
 @dataclass
 class _Pair:
+    """A paired depth + amplitude message, as queued for the worker."""
+
     stamp_ns: int
-    depth: object
-    amplitude: object
-    received: float
+    depth: Image
+    amplitude: Image
+    received: float  # time.monotonic() when the pair formed, seconds
 
 
 class CorrectorStats:
-    """Thread-safe counters and latency history for diagnostics."""
+    """Thread-safe counters, stream ages and latency history for ``/diagnostics``.
+
+    Latency is measured inside the node: from the moment a pair forms (its second image
+    arrives) to the moment its outputs are published, in milliseconds.
+    """
+
+    STREAMS = ("depth", "amplitude", "camera_info")
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self.published = 0
         self.drops: collections.Counter[str] = collections.Counter()
+        self.received: collections.Counter[str] = collections.Counter()
+        self.last_received: dict[str, float] = {}
         self.latencies_ms: collections.deque[float] = collections.deque(maxlen=1000)
         self.last_error = ""
         self._stamps: collections.deque[float] = collections.deque(maxlen=100)
+        self._period_drops: collections.Counter[str] = collections.Counter()
+        self._period_error = ""
+        self._period_published = 0
 
-    def drop(self, reason: str, message: str = "") -> None:
+    def receive(self, stream: str) -> None:
+        """An image or CameraInfo of ``stream`` (one of :attr:`STREAMS`) arrived."""
+        with self._lock:
+            self.received[stream] += 1
+            self.last_received[stream] = time.monotonic()
+
+    def drop(self, reason: str, message: str) -> int:
+        """Count one drop; returns the total for ``reason``."""
         with self._lock:
             self.drops[reason] += 1
-            if message:
-                self.last_error = f"{reason}: {message}"
+            self._period_drops[reason] += 1
+            self.last_error = self._period_error = f"{reason}: {message}"
+            return self.drops[reason]
 
     def done(self, latency_ms: float) -> None:
+        """One pair corrected and published ``latency_ms`` after it formed."""
         with self._lock:
             self.published += 1
+            self._period_published += 1
             self.latencies_ms.append(latency_ms)
             self._stamps.append(time.monotonic())
 
-    def snapshot(self) -> dict[str, str]:
+    def age_s(self, stream: str, now: float) -> float | None:
+        """Seconds since ``stream`` last arrived; None if it never did."""
         with self._lock:
-            lat = np.array(self.latencies_ms) if self.latencies_ms else np.array([np.nan])
+            last = self.last_received.get(stream)
+        return None if last is None else now - last
+
+    def snapshot(self) -> tuple[dict[str, str], collections.Counter[str], int, str]:
+        """Diagnostic values, plus the drops, publications and last error since the previous
+        snapshot (which starts a new period)."""
+        now = time.monotonic()
+        with self._lock:
+            lat = np.asarray(self.latencies_ms, dtype=np.float64)
             span = self._stamps[-1] - self._stamps[0] if len(self._stamps) > 1 else 0.0
             rate = (len(self._stamps) - 1) / span if span > 0 else 0.0
-            values = {"published": str(self.published), "rate_hz": f"{rate:.2f}",
-                      "latency_p50_ms": f"{np.nanpercentile(lat, 50):.2f}",
-                      "latency_p99_ms": f"{np.nanpercentile(lat, 99):.2f}",
-                      "dropped_total": str(sum(self.drops.values())),
-                      "last_error": self.last_error}
-            values.update({f"dropped_{k}": str(v) for k, v in sorted(self.drops.items())})
-            return values
+            if self._stamps and now - self._stamps[-1] > STALE_AFTER_S:
+                rate = 0.0
+            values = {"published": str(self.published), "rate_hz": f"{rate:.2f}"}
+            for q in (50, 99):
+                values[f"latency_p{q}_ms"] = (f"{np.percentile(lat, q):.2f}" if lat.size
+                                              else "nan")
+            values["latency_max_ms"] = f"{lat.max():.2f}" if lat.size else "nan"
+            for stream in self.STREAMS:
+                values[f"received_{stream}"] = str(self.received[stream])
+                last = self.last_received.get(stream)
+                values[f"{stream}_age_s"] = "never" if last is None else f"{now - last:.2f}"
+            values["dropped_total"] = str(sum(self.drops.values()))
+            values.update({f"dropped_{k}": str(self.drops[k]) for k in DROP_REASONS})
+            values["last_error"] = self.last_error
+            period = (self._period_drops, self._period_published, self._period_error)
+            self._period_drops = collections.Counter()
+            self._period_published = 0
+            self._period_error = ""
+        return values, *period
 
 
 class CorrectorNode(Node):
+    """Subscribes to depth + amplitude + CameraInfo, publishes the corrected depth.
+
+    Publishes, beside ``output_topic`` (``<ns>/image`` -> ``<ns>/edges``, ...): ``edges``
+    (mono8, 255 = boundary from G), ``confidence`` (32FC1 in [0, 1]) and ``camera_info`` (the
+    crop's), all with the input depth image's header; and ``/diagnostics``.
+
+    Raises:
+        WeightsError: the weights file is missing or unreadable (the executable turns this
+            into one line on stderr and exit code 2).
+    """
+
     def __init__(self) -> None:
         super().__init__("corrector")
         self.params = declare(self, PARAMETERS)
@@ -112,12 +188,15 @@ class CorrectorNode(Node):
                                            device=self.params["device"])
         self.stats = CorrectorStats()
         self._camera_info: CameraInfo | None = None
+        self._camera_info_ready = threading.Event()
         self._pair_lock = threading.Lock()
-        self.pairer = StampPairer(int(self.params["sync_tolerance_s"] * 1e9))
-        self.worker = LatestQueueWorker(self._process, maxsize=self.params["queue_size"],
-                                        on_error=self._worker_error)
+        self._last_logged: dict[str, float] = {}
+        self.pairer: StampPairer[Image, Image] = StampPairer(
+            round(self.params["sync_tolerance_s"] * 1e9))
+        self.worker: LatestQueueWorker[_Pair] = LatestQueueWorker(
+            self._process, maxsize=self.params["queue_size"], on_error=self._worker_error)
         out = self.params["output_topic"]
-        base = out.rsplit("/", 1)[0] if "/" in out.strip("/") else ""
+        base = out.rsplit("/", 1)[0]
         qos = qos_profile_sensor_data
         self.pub_depth = self.create_publisher(Image, out, qos)
         self.pub_edges = self.create_publisher(Image, f"{base}/edges", qos)
@@ -129,92 +208,169 @@ class CorrectorNode(Node):
                                  qos)
         self.create_subscription(CameraInfo, self.params["camera_info_topic"],
                                  self._on_info, qos)
+        self.add_post_set_parameters_callback(self._on_parameters_set)
         self.create_timer(self.params["diagnostics_period_s"], self._publish_diagnostics)
-        self.get_logger().info(f"correcting {self.params['depth_topic']} + "
-                               f"{self.params['amplitude_topic']} -> {out} with {weights}")
+        h, w = self.model.shape
+        self.get_logger().info(
+            f"correcting {self.params['depth_topic']} + {self.params['amplitude_topic']} -> "
+            f"{out} (central {w}x{h} window, {self.params['input_convention']} convention) "
+            f"with {weights}")
 
     # -- callbacks: cheap, never block --------------------------------------------------
+    def _on_parameters_set(self, parameters: list[Parameter]) -> None:
+        for p in parameters:
+            if p.name in self.params:
+                self.params[p.name] = p.value
+            if p.name == "sync_tolerance_s":
+                with self._pair_lock:
+                    self.pairer.tolerance_ns = round(p.value * 1e9)
+
     def _on_info(self, msg: CameraInfo) -> None:
+        self.stats.receive("camera_info")
         self._camera_info = msg
+        self._camera_info_ready.set()
 
     def _on_depth(self, msg: Image) -> None:
-        self._pair(lambda p: p.add_left(stamp_ns(msg), msg))
+        self.stats.receive("depth")
+        self._pair(msg, left=True)
 
     def _on_amplitude(self, msg: Image) -> None:
-        self._pair(lambda p: p.add_right(stamp_ns(msg), msg))
+        self.stats.receive("amplitude")
+        self._pair(msg, left=False)
 
-    def _pair(self, add) -> None:
+    def _pair(self, msg: Image, *, left: bool) -> None:
+        stamp = stamp_ns(msg)
         with self._pair_lock:
-            before = (self.pairer.stats.unmatched_dropped,
-                      self.pairer.stats.out_of_order_dropped)
-            pair = add(self.pairer)
-            after = (self.pairer.stats.unmatched_dropped,
-                     self.pairer.stats.out_of_order_dropped)
-        if after[0] > before[0]:
-            self.stats.drop("unpaired", "a depth or amplitude image found no partner "
-                            "within sync_tolerance_s")
-        if after[1] > before[1]:
-            self.stats.drop("out_of_order", "stamp older than the last processed pair")
+            s = self.pairer.stats
+            before = (s.unmatched_left, s.unmatched_right, s.out_of_order_dropped)
+            if left:
+                pair = self.pairer.add_left(stamp, msg)
+            else:
+                pair = self.pairer.add_right(stamp, msg)
+            after = (s.unmatched_left, s.unmatched_right, s.out_of_order_dropped)
+            last_ns = self.pairer.last_emitted_ns
+        tol_ms = self.params["sync_tolerance_s"] * 1e3
+        for _ in range(after[0] - before[0]):
+            self._drop("no_amplitude", f"a depth image found no amplitude image on "
+                       f"{self.params['amplitude_topic']} within {tol_ms:g} ms of its stamp")
+        for _ in range(after[1] - before[1]):
+            self._drop("no_depth", f"an amplitude image found no depth image on "
+                       f"{self.params['depth_topic']} within {tol_ms:g} ms of its stamp")
+        if after[2] > before[2]:
+            kind = "depth" if left else "amplitude"
+            self._drop("out_of_order", f"{kind} image stamped {_stamp_text(stamp)} is not newer "
+                       f"than the last paired stamp {_stamp_text(last_ns)}")
         if pair is not None:
             dropped_before = self.worker.dropped
             self.worker.submit(_Pair(pair[0], pair[1], pair[2], time.monotonic()))
             if self.worker.dropped > dropped_before:
-                self.stats.drop("queue_full", "worker too slow, oldest pair dropped")
+                self._drop("queue_full", "the worker is still busy: the oldest waiting pair "
+                           f"was dropped (queue_size {self.params['queue_size']})")
 
     # -- worker thread ------------------------------------------------------------------
     def _process(self, pair: _Pair) -> None:
         info = self._camera_info
+        if info is None and self._camera_info_ready.wait(CAMERA_INFO_WAIT_S):
+            info = self._camera_info
         if info is None:
-            self.stats.drop("no_camera_info", f"nothing on {self.params['camera_info_topic']}")
+            self._drop("no_camera_info", "no CameraInfo on "
+                       f"{self.params['camera_info_topic']} yet")
             return
         try:
-            depth_msg, amp_msg = pair.depth, pair.amplitude
-            depth = depth_to_mm(self._decode(depth_msg), depth_msg.encoding)
-            amplitude = amplitude_to_float(self._decode(amp_msg))
-            result = self.stream.correct(depth, amplitude, intrinsics_of(info))
-        except TofMpdError as err:
-            self.stats.drop("bad_input", str(err))
-            self.get_logger().warning(f"frame dropped: {err}", throttle_duration_sec=5.0)
+            intrinsics = _intrinsics(info)
+            depth = decode_depth(*_fields(pair.depth))
+            amplitude = decode_amplitude(*_fields(pair.amplitude))
+            result = self.stream.correct(depth, amplitude, intrinsics)
+        except FrameRejected as err:
+            self._drop(err.reason, str(err))
             return
         self._publish(pair, result, info)
         self.stats.done((time.monotonic() - pair.received) * 1e3)
 
-    def _decode(self, msg: Image) -> np.ndarray:
-        return image_to_array(msg.encoding, msg.height, msg.width, msg.step,
-                              bool(msg.is_bigendian), msg.data)
-
-    def _publish(self, pair: _Pair, result, info: CameraInfo) -> None:
+    def _publish(self, pair: _Pair, result: StreamResult, info: CameraInfo) -> None:
         header = pair.depth.header
         encoding = self.params["output_encoding"]
         if encoding == "input":
-            encoding = pair.depth.encoding if pair.depth.encoding != "mono16" else "16UC1"
+            encoding = "16UC1" if pair.depth.encoding == "mono16" else pair.depth.encoding
         depth = mm_to_depth(result.depth_mm, encoding)
         self.pub_depth.publish(image_message(depth, encoding, header=header))
-        edges = result.edges.astype(np.uint8) * 255
+        edges = result.edges.astype(np.uint8) * np.uint8(255)
         self.pub_edges.publish(image_message(edges, "mono8", header=header))
         self.pub_confidence.publish(image_message(result.confidence, "32FC1", header=header))
-        # The output is the processed crop: publish its intrinsics (distortion is not modelled).
-        self.pub_info.publish(camera_info_message(result.intrinsics, header=header))
+        self.pub_info.publish(cropped_camera_info(info, result.intrinsics, header=header))
 
     def _worker_error(self, err: BaseException) -> None:
-        self.stats.drop("internal_error", repr(err))
-        self.get_logger().error(f"correction failed: {err!r}", throttle_duration_sec=5.0)
+        self._drop("internal_error", repr(err))
+
+    # -- reporting ----------------------------------------------------------------------
+    def _drop(self, reason: str, message: str) -> None:
+        """Count a drop under ``reason``; log the first at once, then every LOG_EVERY_S."""
+        count = self.stats.drop(reason, message)
+        now = time.monotonic()
+        if now - self._last_logged.get(reason, -np.inf) >= LOG_EVERY_S:
+            self._last_logged[reason] = now
+            log = (self.get_logger().error if reason == "internal_error"
+                   else self.get_logger().warning)
+            log(f"dropped ({reason}, {count} so far): {message}")
+
+    def _missing_stream(self, now: float) -> str:
+        """Why depth images cannot pair (a silent partner stream), or ``""``."""
+        depth_age = self.stats.age_s("depth", now)
+        if depth_age is None or depth_age > STALE_AFTER_S:
+            return ""
+        for stream, topic in (("amplitude", self.params["amplitude_topic"]),
+                              ("camera_info", self.params["camera_info_topic"])):
+            age = self.stats.age_s(stream, now)
+            if age is None:
+                return f"depth images arrive but no {stream} was ever received on {topic}"
+            if age > STALE_AFTER_S:
+                return (f"depth images arrive but nothing on {topic} for {age:.1f} s")
+        return ""
 
     def _publish_diagnostics(self) -> None:
-        values = self.stats.snapshot()
-        dropped = int(values["dropped_total"])
-        level = DiagnosticStatus.OK if dropped == 0 else DiagnosticStatus.WARN
-        if self.stats.published == 0 and dropped > 0:
-            level = DiagnosticStatus.ERROR
+        now = time.monotonic()
+        values, period_drops, period_published, period_error = self.stats.snapshot()
+        missing = self._missing_stream(now)
+        n_dropped = sum(period_drops.values())
+        dropped = ""
+        if n_dropped:
+            reasons = ", ".join(f"{k} {v}" for k, v in sorted(period_drops.items()))
+            dropped = f"dropped {n_dropped} ({reasons}); last: {period_error}"
+        if missing:
+            level, message = DiagnosticStatus.ERROR, "; ".join(filter(None, (missing, dropped)))
+        elif n_dropped:
+            level = DiagnosticStatus.WARN if period_published else DiagnosticStatus.ERROR
+            message = dropped
+        elif self.stats.age_s("depth", now) is None:
+            level = DiagnosticStatus.WARN
+            message = f"waiting for depth images on {self.params['depth_topic']}"
+        else:
+            level = DiagnosticStatus.OK
+            message = (f"correcting at {values['rate_hz']} Hz, latency p99 "
+                       f"{values['latency_p99_ms']} ms")
         status = DiagnosticStatus(level=level, name="tof_mpd_ros: corrector",
-                                  hardware_id=self.params["depth_topic"],
-                                  message=values["last_error"] or "correcting")
+                                  hardware_id=self.params["depth_topic"], message=message)
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(msg)
 
     def destroy_node(self) -> None:
-        self.worker.stop()
+        self.worker.stop(timeout=5.0, discard=True)
         super().destroy_node()
 
+
+def _fields(msg: Image) -> tuple[Any, ...]:
+    """The decoding fields of an Image: encoding, height, width, step, is_bigendian, data."""
+    return (msg.encoding, msg.height, msg.width, msg.step, bool(msg.is_bigendian), msg.data)
+
+
+def _intrinsics(info: CameraInfo) -> Intrinsics:
+    try:
+        return intrinsics_of(info)
+    except InputError as err:
+        raise FrameRejected("bad_camera_info", f"CameraInfo is unusable: {err}") from err
+
+
+def _stamp_text(ns: int) -> str:
+    return f"{ns // 1_000_000_000}.{ns % 1_000_000_000:09d}"

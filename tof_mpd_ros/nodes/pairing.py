@@ -22,8 +22,14 @@ class PairingStats:
     """Counters of what the pairer did with its input."""
 
     paired: int = 0
-    unmatched_dropped: int = 0
+    unmatched_left: int = 0
+    unmatched_right: int = 0
     out_of_order_dropped: int = 0
+
+    @property
+    def unmatched_dropped(self) -> int:
+        """Messages of either stream dropped without a partner."""
+        return self.unmatched_left + self.unmatched_right
 
 
 @dataclass
@@ -49,6 +55,11 @@ class StampPairer(Generic[T, U]):
         self._left = collections.deque()
         self._right = collections.deque()
 
+    @property
+    def last_emitted_ns(self) -> int:
+        """Stamp (ns) of the newest message of the last emitted pair; -1 before the first."""
+        return self._last_emitted_ns
+
     def add_left(self, stamp_ns: int, message: T) -> tuple[int, T, U] | None:
         """Add a left-stream message; returns ``(stamp_ns, left, right)`` when a pair forms."""
         return self._add(self._left, self._right, stamp_ns, message, left_first=True)
@@ -68,11 +79,11 @@ class StampPairer(Generic[T, U]):
             # Everything older than the match can no longer pair with anything newer.
             for _ in range(best):
                 other.popleft()
-                self.stats.unmatched_dropped += 1
+                self._unmatched(left=not left_first)
             other.popleft()
             while mine and mine[0][0] < stamp_ns:
                 mine.popleft()
-                self.stats.unmatched_dropped += 1
+                self._unmatched(left=left_first)
             self._last_emitted_ns = max(stamp_ns, other_stamp)
             self.stats.paired += 1
             pair = (message, other_message) if left_first else (other_message, message)
@@ -80,8 +91,14 @@ class StampPairer(Generic[T, U]):
         mine.append((stamp_ns, message))
         while len(mine) > self.history:
             mine.popleft()
-            self.stats.unmatched_dropped += 1
+            self._unmatched(left=left_first)
         return None
+
+    def _unmatched(self, *, left: bool) -> None:
+        if left:
+            self.stats.unmatched_left += 1
+        else:
+            self.stats.unmatched_right += 1
 
 
 class LatestQueueWorker(Generic[T]):
@@ -143,9 +160,11 @@ class LatestQueueWorker(Generic[T]):
         with self._cond:
             return self._cond.wait_for(lambda: not self._queue and not self._busy, timeout)
 
-    def stop(self, timeout: float = 5.0) -> None:
-        """Finish queued items, then stop the thread."""
+    def stop(self, timeout: float = 5.0, *, discard: bool = False) -> None:
+        """Stop the thread after the queued items (or, with ``discard``, without them)."""
         with self._cond:
+            if discard:
+                self._queue.clear()
             self._stopping = True
             self._cond.notify_all()
         self._thread.join(timeout)

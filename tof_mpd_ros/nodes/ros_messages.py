@@ -45,6 +45,36 @@ def camera_info_message(intrinsics: Intrinsics, frame_id: str = "",
     return msg
 
 
+def cropped_camera_info(info: CameraInfo, crop: Intrinsics,
+                        header: Header | None = None) -> CameraInfo:
+    """CameraInfo of a crop of the image ``info`` describes.
+
+    Keeps the distortion model, coefficients and rectification (a crop does not change them);
+    K and P get the crop's principal point, width and height the crop's size. P's focal lengths
+    and baseline term are kept; ``binning`` and ``roi`` are reset (the crop is the whole image).
+
+    Args:
+        info: CameraInfo of the full input image.
+        crop: intrinsics of the crop (e.g. ``Intrinsics.crop``), pixels of the crop.
+        header: header of the output (default: ``info``'s).
+    """
+    dx = crop.cx - float(info.k[2])
+    dy = crop.cy - float(info.k[5])
+    p = [float(v) for v in info.p]
+    if not any(p):  # an uncalibrated P: use K with no baseline
+        p = [crop.fx, 0.0, crop.cx, 0.0, 0.0, crop.fy, crop.cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+    else:
+        p[2] += dx
+        p[6] += dy
+    msg = CameraInfo(width=crop.width, height=crop.height,
+                     distortion_model=info.distortion_model or "plumb_bob",
+                     d=[float(v) for v in info.d] if info.distortion_model else [0.0] * 5,
+                     r=[float(v) for v in info.r],
+                     k=[crop.fx, 0.0, crop.cx, 0.0, crop.fy, crop.cy, 0.0, 0.0, 1.0], p=p)
+    msg.header = header if header is not None else info.header
+    return msg
+
+
 def intrinsics_of(info: CameraInfo) -> Intrinsics:
     """Intrinsics from a CameraInfo's K matrix (distortion ignored)."""
     k = info.k

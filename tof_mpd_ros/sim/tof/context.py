@@ -42,6 +42,7 @@ class RenderContext:
         true_range_mm: (H, W) float64 range of the pixel-centre surface, mm, NaN = no hit.
         amplitude: (H, W) float64 measured amplitude, set before the ``range`` stage.
         noise_params: parameters of the ``noise`` effect (also read by ``noise_model``).
+        multipath_phasor: (H, W) complex128 indirect phasor once ``multipath`` has run.
     """
 
     intrinsics: Intrinsics
@@ -56,3 +57,4 @@ class RenderContext:
     true_range_mm: np.ndarray | None = None
     amplitude: np.ndarray | None = None
     noise_params: dict = field(default_factory=dict)
+    multipath_phasor: np.ndarray | None = None

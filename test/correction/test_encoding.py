@@ -1,0 +1,145 @@
+"""Patch encoding: whole-frame vectorised path == naive per-pixel reference, bit for bit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from tof_mpd_ros.correction.encoding import EncodingConfig, encode_frame
+from tof_mpd_ros.errors import InputError
+
+CFG = EncodingConfig(range_min_mm=150.0, range_max_mm=550.0, amplitude_min=0.0,
+                     amplitude_max=2.0)
+
+
+def _f32(x: float) -> np.float32:
+    return np.float32(x)
+
+
+def naive_encode(range_mm: np.ndarray, amplitude: np.ndarray, cfg: EncodingConfig) -> np.ndarray:
+    """Per-pixel Python reference of the documented encoding, (H*W, 280) float32."""
+    h, w = range_mm.shape
+    half = cfg.patch_size // 2
+    r = range_mm.astype(np.float32)
+    a = amplitude.astype(np.float32)
+    ok = np.isfinite(r) & np.isfinite(a) & (r > 0) & (a > 0)
+    log_a = np.where(ok, np.log(np.where(ok, a, 1.0).astype(np.float64)), 0.0).astype(np.float32)
+    out = np.zeros((h * w, cfg.n_features), np.float32)
+    m = cfg.n_neighbours
+    scale_r = _f32(0.5 / _f32(cfg.range_clip_mm))
+    scale_a = _f32(0.5 / _f32(cfg.amplitude_log_clip))
+    for y in range(h):
+        for x in range(w):
+            row = out[y * w + x]
+            if not ok[y, x]:
+                continue
+            j = 0
+            for dy in range(-half, half + 1):
+                for dx in range(-half, half + 1):
+                    if dy == 0 and dx == 0:
+                        continue
+                    qy, qx = y + dy, x + dx
+                    if 0 <= qy < h and 0 <= qx < w and ok[qy, qx]:
+                        dr = np.clip(r[qy, qx] - r[y, x], -_f32(cfg.range_clip_mm),
+                                     _f32(cfg.range_clip_mm))
+                        da = np.clip(log_a[qy, qx] - log_a[y, x],
+                                     -_f32(cfg.amplitude_log_clip), _f32(cfg.amplitude_log_clip))
+                        row[j] = dr * scale_r
+                        row[m + j] = da * scale_a
+                    j += 1
+            for k, (v, lo, hi) in enumerate(((r[y, x], cfg.range_min_mm, cfg.range_max_mm),
+                                             (a[y, x], cfg.amplitude_min, cfg.amplitude_max))):
+                pos = (v - _f32(lo)) * _f32(cfg.n_bins / (hi - lo))
+                b = min(max(math.floor(pos), 0), cfg.n_bins - 1)
+                row[2 * m + k * cfg.n_bins + b] = 1.0
+    return out
+
+
+def _random_frame(seed: int, h: int = 17, w: int = 23) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    r = rng.uniform(100, 600, (h, w)).astype(np.float32)
+    a = rng.uniform(0.01, 2.5, (h, w)).astype(np.float32)
+    r[rng.random((h, w)) < 0.08] = np.nan
+    a[rng.random((h, w)) < 0.04] = 0.0
+    r[rng.random((h, w)) < 0.02] = np.inf
+    return r, a
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_frame_encoding_equals_naive_reference(seed: int) -> None:
+    r, a = _random_frame(seed)
+    feats, valid = encode_frame(r, a, CFG)
+    ref = naive_encode(r, a, CFG)
+    assert feats.shape == (r.size, 280) and feats.dtype == torch.float32
+    np.testing.assert_array_equal(feats.numpy(), ref)
+    expected_valid = np.isfinite(r) & (a > 0)
+    np.testing.assert_array_equal(valid.numpy()[0], expected_valid)
+
+
+def test_batch_equals_frames_and_boundary_only_prefix() -> None:
+    frames = [_random_frame(s, 9, 13) for s in (3, 4)]
+    r = np.stack([f[0] for f in frames])
+    a = np.stack([f[1] for f in frames])
+    feats, valid = encode_frame(r, a, CFG)
+    assert valid.shape == (2, 9, 13)
+    for i, (ri, ai) in enumerate(frames):
+        np.testing.assert_array_equal(feats[i * 117:(i + 1) * 117].numpy(),
+                                      naive_encode(ri, ai, CFG))
+    short, _ = encode_frame(r, a, CFG, boundary_only=True)
+    np.testing.assert_array_equal(short.numpy(), feats[:, :240].numpy())
+
+
+def test_hand_computed_values() -> None:
+    """A 40 mm step and a 2x amplitude step, seen from the pixel left of the step."""
+    r = np.full((11, 11), 300.0, np.float32)
+    r[:, 6:] = 340.0
+    a = np.ones((11, 11), np.float32)
+    a[:, 6:] = 2.0
+    feats, _ = encode_frame(r, a, CFG)
+    row = feats[5 * 11 + 5].numpy()      # centre pixel (5, 5), at column 5 of 11
+    x_r, x_a = row[:120], row[120:240]
+    # neighbour (dy=-5, dx=+1) is patch index 6 (first row, column 6): across the step
+    assert x_r[6] == pytest.approx(40.0 / 100.0)      # clip 50 mm -> 40 / (2*50)
+    assert x_r[4] == 0.0                               # same surface
+    assert x_a[6] == pytest.approx(math.log(2.0) / (2 * math.log(4.0)), rel=1e-6)
+    assert np.all(np.abs(row[:240]) <= 0.5)
+    # range 300 in [150, 550) with 20 bins -> bin 7; amplitude 1 in [0, 2) -> bin 10
+    assert np.flatnonzero(row[240:260]).tolist() == [7]
+    assert np.flatnonzero(row[260:280]).tolist() == [10]
+    # a 400 mm step saturates at +0.5; out-of-range centre values fall in the end bins
+    r2 = r.copy()
+    r2[:, 6:] = 2000.0
+    row2 = encode_frame(r2, a, CFG)[0][5 * 11 + 9].numpy()   # centre at 2000 mm
+    assert np.flatnonzero(row2[240:260]).tolist() == [19]
+    assert encode_frame(r2, a, CFG)[0][5 * 11 + 5].numpy()[6] == 0.5
+
+
+def test_config_validation_and_shape_errors() -> None:
+    with pytest.raises(InputError, match="patch_size must be odd"):
+        EncodingConfig(patch_size=10)
+    with pytest.raises(InputError, match="max > min"):
+        EncodingConfig(range_min_mm=500, range_max_mm=100)
+    with pytest.raises(InputError, match="got \\(4, 5\\) and \\(4, 6\\)"):
+        encode_frame(np.zeros((4, 5)), np.zeros((4, 6)), CFG)
+    assert EncodingConfig().n_features == 280 and EncodingConfig().n_boundary_features == 240
+
+
+def test_column_layout_holds_the_same_numbers() -> None:
+    from tof_mpd_ros.correction.encoding import encode_frame_columns
+
+    r, a = _random_frame(7)
+    feats, valid = encode_frame(r, a, CFG)
+    (cols,) = encode_frame_columns(r, a, CFG)
+    keep = [i for i in range(121) if i != 60]
+    np.testing.assert_array_equal(cols.x_range.numpy()[keep].T, feats[:, :120].numpy())
+    np.testing.assert_array_equal(cols.x_amplitude.numpy()[keep].T, feats[:, 120:240].numpy())
+    assert not cols.x_range[60].any() and not cols.x_amplitude[60].any()   # centre row is 0
+    ok = valid.reshape(-1).numpy()
+    np.testing.assert_array_equal(cols.bin_range.numpy()[ok],
+                                  feats[:, 240:260].argmax(1).numpy()[ok])
+    np.testing.assert_array_equal(cols.bin_amplitude.numpy()[ok],
+                                  feats[:, 260:280].argmax(1).numpy()[ok])
+    np.testing.assert_array_equal(cols.valid.numpy(), valid[0].numpy())

@@ -1,0 +1,109 @@
+"""Networks F and G: architecture, batched heads == four separate nets, function == module."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from torch import nn
+
+from tof_mpd_ros.correction.networks import (
+    BoundaryNets,
+    RangeRecoveryNet,
+    boundary_scores,
+    recover_range,
+)
+from tof_mpd_ros.errors import InputError
+
+
+def _gen(seed: int) -> torch.Generator:
+    return torch.Generator().manual_seed(seed)
+
+
+def test_paper_architecture_sizes() -> None:
+    f = RangeRecoveryNet(generator=_gen(0))
+    g = BoundaryNets(generator=_gen(0))
+    widths = [(layer.in_features, layer.out_features) for layer in f.layers]
+    assert widths == [(280, 40), (40, 10), (10, 10), (10, 1)]
+    assert sum(p.numel() for p in f.parameters()) == 280 * 40 + 40 + 40 * 10 + 10 + 110 + 11
+    assert sum(p.numel() for p in g.parameters()) == 4 * (240 * 40 + 40 + 40 * 20 + 20 + 42)
+
+
+def test_range_net_outputs_millimetres_and_recover_adds_range() -> None:
+    f = RangeRecoveryNet(generator=_gen(1))
+    x = torch.rand(64, 280, generator=_gen(2)) - 0.5
+    out = f(x)
+    assert out.shape == (64,)
+    torch.testing.assert_close(out, 15.0 * f.normalised(x))
+    r = torch.full((64,), 300.0)
+    torch.testing.assert_close(recover_range(r, x, f), r + out)
+    with pytest.raises(InputError, match="must be \\(N,\\) with N = 64"):
+        recover_range(r[:3], x, f)
+
+
+def test_boundary_heads_equal_four_separate_nets() -> None:
+    g = BoundaryNets(generator=_gen(3))
+    x = torch.rand(50, 280, generator=_gen(4)) - 0.5   # extra b columns are ignored
+    logits = g(x)
+    assert logits.shape == (50, 4, 2)
+    for k in range(4):
+        head = nn.Sequential(nn.Linear(240, 40), nn.ReLU(), nn.Linear(40, 20), nn.ReLU(),
+                             nn.Linear(20, 2))
+        with torch.no_grad():
+            head[0].weight.copy_(g.first.weight[40 * k:40 * (k + 1)])
+            head[0].bias.copy_(g.first.bias[40 * k:40 * (k + 1)])
+            head[2].weight.copy_(g.w2[k].T)
+            head[2].bias.copy_(g.b2[k, 0])
+            head[4].weight.copy_(g.w3[k].T)
+            head[4].bias.copy_(g.b3[k, 0])
+        torch.testing.assert_close(logits[:, k], head(x[:, :240]))
+        torch.testing.assert_close(boundary_scores(x, g)[:, k],
+                                   torch.softmax(head(x[:, :240]), dim=1)[:, 1])
+
+
+def test_seeded_init_is_deterministic_and_dtype_follows_module() -> None:
+    a, b, c = (RangeRecoveryNet(generator=_gen(s)) for s in (7, 7, 8))
+    assert all(torch.equal(p, q) for p, q in zip(a.parameters(), b.parameters(), strict=True))
+    assert not torch.equal(a.layers[0].weight, c.layers[0].weight)
+    g = BoundaryNets(generator=_gen(7)).double()
+    assert g(torch.zeros(3, 240)).dtype == torch.float64
+
+
+def test_feature_width_errors() -> None:
+    with pytest.raises(InputError, match=r"expected features \(N, >= 280\), got \(5, 240\)"):
+        RangeRecoveryNet()(torch.zeros(5, 240))
+    with pytest.raises(InputError, match="BoundaryNets"):
+        BoundaryNets()(torch.zeros(5))
+
+
+def test_fused_inference_equals_modules() -> None:
+    import numpy as np
+
+    from tof_mpd_ros.correction.encoding import (
+        EncodingConfig,
+        encode_frame,
+        encode_frame_columns,
+    )
+    from tof_mpd_ros.correction.networks import FusedPatchNets
+
+    rng = np.random.default_rng(0)
+    r = (300 + 40 * (rng.random((30, 35)) > 0.7) + rng.normal(0, 2, (30, 35))).astype(np.float32)
+    a = rng.uniform(0.2, 1.0, (30, 35)).astype(np.float32)
+    r[4, 5] = np.nan
+    cfg = EncodingConfig(amplitude_max=1.0)
+    f, g = RangeRecoveryNet(generator=_gen(11)), BoundaryNets(generator=_gen(12))
+    feats, valid = encode_frame(r, a, cfg)
+    (cols,) = encode_frame_columns(r, a, cfg)
+    ok = valid.reshape(-1)
+    with torch.no_grad():
+        corr, probs = FusedPatchNets(f, g, 11, 20)(cols.x_range, cols.x_amplitude,
+                                                   cols.bin_range, cols.bin_amplitude)
+        torch.testing.assert_close(corr[ok], f(feats)[ok], rtol=0, atol=1e-4)
+        torch.testing.assert_close(probs[ok], g.probabilities(feats)[ok], rtol=0, atol=1e-5)
+        corr16, probs16 = FusedPatchNets(f, g, 11, 20, "bfloat16")(
+            cols.x_range, cols.x_amplitude, cols.bin_range, cols.bin_amplitude)
+    assert (corr16 - corr)[ok].abs().max() < 0.1          # mm
+    assert (probs16 - probs)[ok].abs().max() < 0.02
+    with pytest.raises(InputError, match="do not fit a 9x9"):
+        FusedPatchNets(f, g, 9, 20)
+    with pytest.raises(InputError, match="precision"):
+        FusedPatchNets(f, g, 11, 20, "float16")

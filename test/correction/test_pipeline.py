@@ -1,0 +1,123 @@
+"""Correction pipeline: component switches, invalid pixels, batches, crop checks."""
+
+from __future__ import annotations
+
+import sys
+import types
+
+import numpy as np
+import pytest
+import torch
+
+import tof_mpd_ros.correction as correction_pkg
+from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+from tof_mpd_ros.correction.encoding import EncodingConfig
+from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
+from tof_mpd_ros.errors import InputError
+
+H, W = 20, 24
+
+
+@pytest.fixture
+def geodesic_stub(monkeypatch):
+    """Replace the geodesic filter by a recorder that adds 1 mm (isolates this module)."""
+    calls = []
+
+    def geodesic_filter(range_mm, edges, *, k=81, sigma=2.0, step=1.0):
+        calls.append({"range": range_mm.copy(), "edges": edges.copy(), "k": k, "sigma": sigma})
+        return range_mm + 1.0
+
+    stub = types.ModuleType("tof_mpd_ros.correction.geodesic")
+    stub.geodesic_filter = geodesic_filter
+    monkeypatch.setitem(sys.modules, "tof_mpd_ros.correction.geodesic", stub)
+    monkeypatch.setattr(correction_pkg, "geodesic", stub, raising=False)
+    return calls
+
+
+def _model(offset_mm: float = 5.0, f_bias: float = 0.2) -> CorrectionModel:
+    calib = IntrinsicCalibration(np.full((H, W), offset_mm), np.ones((H, W)), np.zeros((H, W)),
+                                 np.ones((H, W), bool))
+    model = CorrectionModel.untrained(calib, EncodingConfig(amplitude_max=2.0), seed=0)
+    with torch.no_grad():   # F = constant 15 * f_bias mm, whatever the patch
+        model.range_net.layers[-1].weight.zero_()
+        model.range_net.layers[-1].bias.fill_(f_bias)
+    return model
+
+
+def _frame(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    r = (300 + rng.normal(0, 1, (H, W))).astype(np.float32)
+    r[:, W // 2:] += 60.0                       # a depth step for G to look at
+    a = rng.uniform(0.2, 1.5, (H, W)).astype(np.float32)
+    return r, a
+
+
+def test_components_and_switches(geodesic_stub) -> None:
+    model = _model()
+    r, a = _frame()
+    full = correct(model, r, a)
+    np.testing.assert_allclose(full.calibrated_mm, r + 5.0, atol=1e-4)
+    np.testing.assert_allclose(full.range_f_mm, r + 5.0 + 3.0, atol=1e-4)   # F = 15 * 0.2
+    np.testing.assert_allclose(full.range_mm, full.range_f_mm + 1.0, atol=1e-4)
+    assert geodesic_stub[-1]["k"] == 81 and geodesic_stub[-1]["sigma"] == 2.0
+    np.testing.assert_array_equal(geodesic_stub[-1]["edges"], full.edges)
+    assert full.range_mm.dtype == np.float32 and full.edges.dtype == bool
+    assert full.confidence.dtype == np.float32
+    assert ((full.confidence >= 0) & (full.confidence <= 1)).all()
+
+    no_f = correct(model, r, a, use_range_net=False)
+    np.testing.assert_array_equal(no_f.range_f_mm, no_f.calibrated_mm)
+    np.testing.assert_allclose(no_f.range_mm, no_f.calibrated_mm + 1.0, atol=1e-4)
+
+    n_calls = len(geodesic_stub)
+    no_g = correct(model, r, a, use_boundary=False)
+    assert len(geodesic_stub) == n_calls            # no filtering at all
+    np.testing.assert_array_equal(no_g.range_mm, full.range_f_mm)
+    assert not no_g.edges.any() and (no_g.confidence == 1).all()
+
+
+def test_invalid_pixels_stay_nan(geodesic_stub) -> None:
+    model = _model()
+    r, a = _frame(1)
+    r[0, 0], r[1, 1], a[2, 2], r[3, 3], a[4, 4] = np.nan, np.inf, 0.0, -5.0, np.nan
+    res = correct(model, r, a)
+    bad = np.zeros((H, W), bool)
+    bad[[0, 1, 2, 3, 4], [0, 1, 2, 3, 4]] = True
+    np.testing.assert_array_equal(res.valid, ~bad)
+    for out in (res.range_mm, res.range_f_mm, res.calibrated_mm):
+        assert np.isnan(out[bad]).all() and np.isfinite(out[~bad]).all()
+    assert (res.confidence[bad] == 0).all()
+
+
+def test_batch_equals_single_frames(geodesic_stub) -> None:
+    model = _model()
+    frames = [_frame(s) for s in (2, 3, 4)]
+    batch = correct(model, np.stack([f[0] for f in frames]), np.stack([f[1] for f in frames]))
+    assert batch.range_mm.shape == (3, H, W)
+    for i, (r, a) in enumerate(frames):
+        one = correct(model, r, a)
+        np.testing.assert_allclose(batch.range_mm[i], one.range_mm, rtol=0, atol=1e-4)
+        np.testing.assert_array_equal(batch.edges[i], one.edges)
+
+
+def test_input_errors() -> None:
+    model = _model()
+    r, a = _frame()
+    with pytest.raises(InputError, match=r"frame is 180x140 .* trained on a 24x20 crop"):
+        correct(model, np.zeros((140, 180)), np.zeros((140, 180)))
+    with pytest.raises(InputError, match="differ in shape"):
+        correct(model, r, a[None])
+    with pytest.raises(InputError, match="expected 2 or 3 dimensions"):
+        correct(model, r[0], a[0])
+    with pytest.raises(InputError, match="dtype kind"):
+        correct(model, r.astype(str), a)
+
+
+def test_end_to_end_with_real_edge_and_geodesic_modules() -> None:
+    pytest.importorskip("tof_mpd_ros.correction.geodesic")
+    model = _model()
+    r, a = _frame(5)
+    r[3, 4] = np.nan
+    res = correct(model, r, a)
+    assert np.isnan(res.range_mm[3, 4])
+    assert np.isfinite(res.range_mm[res.valid]).all()

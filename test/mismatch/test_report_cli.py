@@ -1,0 +1,75 @@
+"""The report files, the command line and the benchmark's bookkeeping."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tof_mpd_ros.cli.main import main
+from tof_mpd_ros.mismatch.benchmark import case_plan, parameter_error, summarise
+from tof_mpd_ros.recordings import save_npz
+from tof_mpd_ros.sim.tof import ToFConfig
+
+
+@pytest.fixture(scope="module")
+def drift_npz(tmp_path_factory, sweep):
+    path = tmp_path_factory.mktemp("mm") / "real.npz"
+    save_npz(path, sweep({"temperature_drift": {"max_mm": 8.0, "tau_frames": 5.0}}))
+    return path
+
+
+def test_mismatch_cli_writes_report(drift_npz, tmp_path, capsys):
+    out = tmp_path / "report"
+    assert main(["mismatch", str(drift_npz), "-o", str(out), "--max-effects", "1"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["selected"] == ["temperature_drift"]
+    doc = json.loads((out / "report.json").read_text())
+    for key in ("selected", "ranking", "parameters", "rmse_before_mm", "rmse_after_mm"):
+        assert key in doc
+    assert doc["rmse_after_mm"] < doc["rmse_before_mm"]
+    assert {r["effect"] for r in doc["ranking"]} >= {"multipath", "hand_eye", "noise_model"}
+    assert all(r["evidence"] for r in doc["ranking"])
+    cfg = ToFConfig.from_dict(json.loads((out / "fitted_config.json").read_text()))
+    assert cfg.enabled("temperature_drift")
+    html = (out / "index.html").read_text()
+    for png in ("residual_histogram.png", "residual_images.png", "ranking.png"):
+        assert (out / png).stat().st_size > 1000 and png in html
+
+
+def test_mismatch_cli_errors_are_one_line(tmp_path, capsys):
+    assert main(["mismatch", str(tmp_path / "missing.npz"), "-o", str(tmp_path / "o")]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_case_plan_has_controls_singles_and_pairs():
+    plan = case_plan(20, seed=3)
+    assert len(plan) == 20
+    assert sum(1 for p in plan if not p) == 4 and sum(1 for p in plan if len(p) == 2) == 3
+    assert plan == case_plan(20, seed=3)
+
+
+def test_scores_from_rows():
+    rows = [
+        {"truth": [], "selected": [], "top1": True, "both_found": None, "rmse_before_mm": 4.0,
+         "rmse_after_mm": 4.0, "excess_before_mm": 1.0, "excess_after_mm": 1.0,
+         "parameter_error": {}},
+        {"truth": [], "selected": ["wiggling"], "top1": False, "both_found": None,
+         "rmse_before_mm": 4.0, "rmse_after_mm": 3.9, "excess_before_mm": 1.0,
+         "excess_after_mm": 0.9, "parameter_error": {}},
+        {"truth": ["multipath"], "selected": ["multipath"], "top1": True, "both_found": None,
+         "rmse_before_mm": 6.0, "rmse_after_mm": 4.5, "excess_before_mm": 2.0,
+         "excess_after_mm": 0.5, "parameter_error": {"multipath": 0.1}},
+    ]
+    s = summarise(rows)
+    assert s["false_alarm_rate"] == 0.5 and s["top1_accuracy_effect_cases"] == 1.0
+    assert np.isclose(s["excess_rmse_cut_interior_mean"], 0.75)
+    assert np.isclose(parameter_error("multipath", {"gain": 1.5}, {"gain": 3.0}), 0.5)
+
+
+def test_benchmark_help_says_what_it_does(capsys):
+    with pytest.raises(SystemExit):
+        main(["mismatch-benchmark", "--help"])
+    text = capsys.readouterr().out
+    assert "labels.json" in text and "benchmark.json" in text and "min" in text

@@ -1,0 +1,513 @@
+"""The corrector node in its own process (loopback only): a live simulated stream, bad input,
+corrupt weights and a real Azure Kinect frame.
+
+The weights are untrained (identity calibration, seeded networks): these tests check the node's
+plumbing (pairing, decoding, conventions, queueing, publishing, diagnostics), not the method's
+accuracy. Speed is a benchmark matter (benchmarks/bench_corrector_node.py, SPEC section 6): the
+live-stream test runs on a small crop, so that it checks "every frame corrected" rather than
+how fast this shared machine happens to be.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy")
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus  # noqa: E402
+from rclpy.executors import SingleThreadedExecutor  # noqa: E402
+from rclpy.qos import (  # noqa: E402
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+from ros_harness import spin_until, start_node, stop_node  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
+
+from tof_mpd_ros.camera import Intrinsics  # noqa: E402
+from tof_mpd_ros.correction.calibration import IntrinsicCalibration  # noqa: E402
+from tof_mpd_ros.correction.depth_stream import (  # noqa: E402
+    DROP_REASONS,
+    DepthStreamCorrector,
+    decode_amplitude,
+    decode_depth,
+)
+from tof_mpd_ros.correction.pipeline import CorrectionModel  # noqa: E402
+from tof_mpd_ros.correction.weights import load_weights, save_weights  # noqa: E402
+from tof_mpd_ros.image_encoding import image_to_array  # noqa: E402
+from tof_mpd_ros.nodes.ros_messages import (  # noqa: E402
+    camera_info_message,
+    image_message,
+    intrinsics_of,
+    stamp_ns,
+)
+
+REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "azure_kinect_mug"
+STREAM_DOMAIN, BAD_INPUT_DOMAIN, REAL_DOMAIN, WEIGHTS_DOMAIN = 62, 63, 64, 65
+SMALL = (48, 64)  # (H, W) of the live-stream and bad-input tests' model and frames
+OUTPUT = "/tof/depth_corrected/image"
+# Test subscribers: best effort (matches sensor-data publishers) with a deep history, so a
+# busy test process does not lose what it is counting.
+DEEP = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST,
+                  depth=1000)
+
+
+# -- fixtures and helpers -------------------------------------------------------------------
+@pytest.fixture(scope="session")
+def weights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Untrained models saved as weights files: the paper's 180x140 crop and a small one."""
+    out = tmp_path_factory.mktemp("weights")
+    paths = {}
+    for name, (h, w) in (("paper", (140, 180)), ("small", SMALL)):
+        model = CorrectionModel.untrained(IntrinsicCalibration.identity(h, w), seed=3)
+        paths[name] = save_weights(out / f"{name}.npz", model)
+    return paths
+
+
+@dataclass
+class Listener:
+    """A node in the test process: a private rclpy context on ``domain_id``."""
+
+    node: object
+    executor: SingleThreadedExecutor
+    diagnostics: list[DiagnosticArray] = field(default_factory=list)
+
+    def spin_until(self, condition: Callable[[], bool], timeout: float) -> bool:
+        return spin_until(self.node, self.executor, condition, timeout)
+
+    def latest_values(self) -> dict[str, str]:
+        """Key/values of the newest /diagnostics status from the corrector ({} if none)."""
+        for msg in reversed(self.diagnostics):
+            for status in msg.status:
+                if status.name == "tof_mpd_ros: corrector":
+                    return {kv.key: kv.value for kv in status.values}
+        return {}
+
+    def statuses(self) -> list:
+        return [s for m in self.diagnostics for s in m.status
+                if s.name == "tof_mpd_ros: corrector"]
+
+
+@contextlib.contextmanager
+def listener(domain_id: int) -> Iterator[Listener]:
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    node = rclpy.create_node(f"corrector_test_{domain_id}", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    lis = Listener(node, executor)
+    node.create_subscription(DiagnosticArray, "/diagnostics", lis.diagnostics.append, 100)
+    try:
+        yield lis
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        context.try_shutdown()
+
+
+def start_corrector(weights_path: Path, domain_id: int, log: Path, **params: object):
+    return start_node("corrector", {"weights_path": str(weights_path),
+                                    "diagnostics_period_s": 0.25, **params}, domain_id, log)
+
+
+def wait_for_corrector(lis: Listener, process, log: Path, timeout: float = 90.0) -> None:
+    """Until the corrector process publishes /diagnostics (it is up and spinning)."""
+    ok = lis.spin_until(lambda: bool(lis.latest_values()) or process.poll() is not None,
+                        timeout)
+    assert ok and process.poll() is None, log.read_text()[-3000:]
+
+
+def offline_output(model: CorrectionModel, depth: Image, amplitude: Image,
+                   info: CameraInfo) -> np.ndarray:
+    """The corrected depth in mm the node should publish for this input (z convention)."""
+    stream = DepthStreamCorrector(model, input_convention="z")
+    result = stream.correct(decode_depth(*fields(depth)), decode_amplitude(*fields(amplitude)),
+                            intrinsics_of(info))
+    return result.depth_mm
+
+
+def fields(msg: Image) -> tuple:
+    return (msg.encoding, msg.height, msg.width, msg.step, bool(msg.is_bigendian), msg.data)
+
+
+def decoded(msg: Image) -> np.ndarray:
+    return image_to_array(msg.encoding, msg.height, msg.width, msg.step,
+                          bool(msg.is_bigendian), msg.data)
+
+
+# -- 1. a live simulated stream ------------------------------------------------------------
+def test_sim_cell_at_30_hz_every_frame_corrected_like_the_offline_pipeline(
+        weights: dict[str, Path], tmp_path: Path) -> None:
+    """sim_cell -> corrector -> this process, 20 s at 30 Hz: no drop, outputs == offline.
+
+    The worker queue is deep (30 pairs) so that CPU contention from other processes on this
+    2-core machine delays frames instead of dropping them: the test is about the node losing
+    nothing, not about its latency (which the benchmark measures, with the default queue).
+    """
+    h, w = SMALL
+    inputs: dict[str, dict[int, Image]] = {"depth": {}, "amplitude": {}}
+    outputs: dict[int, Image] = {}
+    infos: list[CameraInfo] = []
+    corrector = start_corrector(weights["small"], STREAM_DOMAIN, tmp_path / "corrector.log",
+                                queue_size=30)
+    sim = None
+    try:
+        with listener(STREAM_DOMAIN) as lis:
+            node = lis.node
+            node.create_subscription(Image, "/tof/depth/image_raw",
+                                     lambda m: inputs["depth"].__setitem__(stamp_ns(m), m), DEEP)
+            node.create_subscription(Image, "/tof/amplitude/image_raw",
+                                     lambda m: inputs["amplitude"].__setitem__(stamp_ns(m), m),
+                                     DEEP)
+            node.create_subscription(CameraInfo, "/tof/camera_info", infos.append, DEEP)
+            node.create_subscription(Image, OUTPUT, lambda m: outputs.__setitem__(stamp_ns(m), m),
+                                     DEEP)
+            wait_for_corrector(lis, corrector, tmp_path / "corrector.log")
+            sim = start_node("sim_cell", {"rate_hz": 30.0, "views": 2, "crop_width": w,
+                                          "crop_height": h, "publish_reference": False},
+                             STREAM_DOMAIN, tmp_path / "sim_cell.log")
+            assert lis.spin_until(lambda: len(inputs["depth"]) > 0, 120), \
+                (tmp_path / "sim_cell.log").read_text()[-3000:]
+            start = time.monotonic()
+            lis.spin_until(lambda: time.monotonic() - start > 20.0, 25.0)
+            assert stop_node(sim) == 0, (tmp_path / "sim_cell.log").read_text()[-3000:]
+            n_in = len(inputs["depth"])
+            lis.spin_until(lambda: len(outputs) >= n_in, 10.0)
+            # One more diagnostics period, so the counters include the last frame.
+            n_diag = len(lis.diagnostics)
+            lis.spin_until(lambda: len(lis.diagnostics) >= n_diag + 2, 5.0)
+            values = lis.latest_values()
+        assert corrector.poll() is None, "the corrector exited"
+    finally:
+        if sim is not None:
+            stop_node(sim)
+        code = stop_node(corrector)
+    log = (tmp_path / "corrector.log").read_text()
+    assert code == 0, log[-3000:]
+
+    assert n_in >= 20 * 30 * 0.7, f"sim_cell published only {n_in} frames in 20 s"
+    assert set(inputs["amplitude"]) == set(inputs["depth"])
+    assert set(outputs) == set(inputs["depth"]), (
+        f"{len(outputs)} outputs for {n_in} inputs; diagnostics {values}")
+    assert values["dropped_total"] == "0", values
+    assert int(values["published"]) == int(values["received_depth"]) == n_in, values
+
+    # The published range equals the offline pipeline on the same input. sim_cell cycles
+    # through `views` rendered frames, so each distinct input is corrected offline once.
+    model = load_weights(weights["small"])
+    expected: dict[bytes, np.ndarray] = {}
+    for stamp, out in outputs.items():
+        depth, amp = inputs["depth"][stamp], inputs["amplitude"][stamp]
+        key = bytes(depth.data) + bytes(amp.data)
+        if key not in expected:
+            expected[key] = offline_output(model, depth, amp, infos[-1])
+        assert (out.encoding, out.height, out.width) == ("32FC1", h, w)
+        assert out.header.frame_id == depth.header.frame_id
+        got_mm = decoded(out).astype(np.float64) * 1000.0
+        np.testing.assert_array_equal(np.isnan(got_mm), np.isnan(expected[key]))
+        np.testing.assert_allclose(got_mm, expected[key], rtol=0, atol=1e-3, equal_nan=True)
+    assert len(expected) == 2
+    assert "Traceback" not in log
+
+
+# -- 2. bad input: logged, counted, reported; the node keeps running -------------------------
+@dataclass
+class BadInputRig:
+    """One corrector process and a publisher of hand-made frames, shared by the tests."""
+
+    lis: Listener
+    process: object
+    log: Path
+    depth: object
+    amplitude: object
+    info: object
+    outputs: dict[int, Image]
+    intrinsics: Intrinsics = field(default_factory=lambda: Intrinsics.from_fov(
+        SMALL[1], SMALL[0], 60.0))
+
+    def frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """A valid (H, W) z-depth (m, a tilted plane) and amplitude pair."""
+        h, w = SMALL
+        v, u = np.mgrid[0:h, 0:w]
+        depth_m = (0.3 + 0.0005 * u + 0.0002 * v).astype(np.float32)
+        amplitude = (500.0 + 2.0 * u).astype(np.float32)
+        return depth_m, amplitude
+
+    def publish(self, depth: Image | None, amplitude: Image | None,
+                stamp_s: float | None = None, info: CameraInfo | None = None) -> int:
+        """Publish with one stamp (default: now); returns it in nanoseconds."""
+        t = (self.lis.node.get_clock().now().to_msg() if stamp_s is None
+             else _time_msg(stamp_s))
+        info = info or camera_info_message(self.intrinsics, "tof_optical_frame")
+        info.header.stamp = t
+        self.info.publish(info)
+        for msg, pub in ((depth, self.depth), (amplitude, self.amplitude)):
+            if msg is not None:
+                msg.header.stamp = t
+                msg.header.frame_id = "tof_optical_frame"
+                pub.publish(msg)
+        return t.sec * 1_000_000_000 + t.nanosec
+
+    def publish_good(self, stamp_s: float | None = None) -> int:
+        depth_m, amplitude = self.frame()
+        return self.publish(image_message(depth_m, "32FC1"),
+                            image_message(amplitude, "32FC1"), stamp_s)
+
+    def expect_corrected(self, timeout: float = 20.0) -> None:
+        """A good frame still comes out (retried: sensor-data QoS is best effort)."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            stamp = self.publish_good()
+            if self.lis.spin_until(lambda s=stamp: s in self.outputs, 2.0):
+                break
+        else:
+            pytest.fail(f"no corrected output; log:\n{self.log.read_text()[-3000:]}")
+        assert self.process.poll() is None
+
+    def counter(self, reason: str) -> int:
+        return int(self.lis.latest_values().get(f"dropped_{reason}", "0"))
+
+    def expect_drop(self, reason: str, before: int, timeout: float = 10.0) -> dict[str, str]:
+        """The counter for ``reason`` grows, a /diagnostics message names it, the log too."""
+        n_status = len(self.lis.statuses())
+        assert self.lis.spin_until(lambda: self.counter(reason) > before, timeout), (
+            self.lis.latest_values(), self.log.read_text()[-3000:])
+        assert self.lis.spin_until(
+            lambda: any(reason in s.message for s in self.lis.statuses()[n_status - 1:]), 5.0)
+        assert self.lis.spin_until(lambda: f"dropped ({reason}" in self.log.read_text(), 5.0), \
+            self.log.read_text()[-3000:]
+        return self.lis.latest_values()
+
+
+def _time_msg(seconds: float):
+    from builtin_interfaces.msg import Time
+
+    ns = round(seconds * 1e9)
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+@pytest.fixture(scope="module")
+def rig(weights: dict[str, Path], tmp_path_factory: pytest.TempPathFactory
+        ) -> Iterator[BadInputRig]:
+    log = tmp_path_factory.mktemp("bad_input") / "corrector.log"
+    process = start_corrector(weights["small"], BAD_INPUT_DOMAIN, log)
+    try:
+        with listener(BAD_INPUT_DOMAIN) as lis:
+            node = lis.node
+            outputs: dict[int, Image] = {}
+            node.create_subscription(Image, OUTPUT, lambda m: outputs.__setitem__(stamp_ns(m), m),
+                                     DEEP)
+            qos = qos_profile_sensor_data
+            r = BadInputRig(lis, process, log,
+                            node.create_publisher(Image, "/tof/depth/image_raw", qos),
+                            node.create_publisher(Image, "/tof/amplitude/image_raw", qos),
+                            node.create_publisher(CameraInfo, "/tof/camera_info", qos), outputs)
+            wait_for_corrector(lis, process, log)
+            assert lis.spin_until(lambda: all(p.get_subscription_count() >= 1
+                                              for p in (r.depth, r.amplitude, r.info)), 30)
+            r.expect_corrected()
+            yield r
+            assert process.poll() is None, "the corrector exited"
+    finally:
+        code = stop_node(process)
+    assert code == 0, log.read_text()[-3000:]
+    assert "Traceback" not in log.read_text()
+
+
+def test_wrong_depth_encoding_is_dropped_and_reported(rig: BadInputRig) -> None:
+    before = rig.counter("bad_encoding")
+    depth_m, amplitude = rig.frame()
+    rgb = np.repeat((depth_m * 100).astype(np.uint8)[..., None], 3, axis=2)
+    bad = Image(height=rgb.shape[0], width=rgb.shape[1], encoding="rgb8", is_bigendian=0,
+                step=rgb.shape[1] * 3, data=rgb.tobytes())
+    rig.publish(bad, image_message(amplitude, "32FC1"))
+    values = rig.expect_drop("bad_encoding", before)
+    assert "rgb8" in values["last_error"] and "REP 118" in values["last_error"]
+    rig.expect_corrected()
+
+
+def test_depth_and_amplitude_of_different_sizes_are_dropped(rig: BadInputRig) -> None:
+    before = rig.counter("size_mismatch")
+    depth_m, amplitude = rig.frame()
+    rig.publish(image_message(depth_m, "32FC1"), image_message(amplitude[::2, ::2], "32FC1"))
+    values = rig.expect_drop("size_mismatch", before)
+    assert "64x48" in values["last_error"] and "32x24" in values["last_error"]
+    rig.expect_corrected()
+
+
+def test_an_all_nan_frame_is_dropped(rig: BadInputRig) -> None:
+    before = rig.counter("no_valid_pixel")
+    depth_m, amplitude = rig.frame()
+    rig.publish(image_message(np.full_like(depth_m, np.nan), "32FC1"),
+                image_message(amplitude, "32FC1"))
+    rig.expect_drop("no_valid_pixel", before)
+    rig.expect_corrected()
+
+
+def test_out_of_order_stamps_are_dropped(rig: BadInputRig) -> None:
+    rig.expect_corrected()
+    before = rig.counter("out_of_order")
+    n_out = len(rig.outputs)
+    old = time.time() - 10.0
+    rig.publish(*(image_message(a, "32FC1") for a in rig.frame()), stamp_s=old)
+    rig.expect_drop("out_of_order", before)
+    assert len(rig.outputs) == n_out  # nothing was published for the old stamp
+    rig.expect_corrected()
+
+
+def test_amplitude_never_arriving_is_counted_and_reported(rig: BadInputRig) -> None:
+    before = rig.counter("no_amplitude")
+    depth_m, _ = rig.frame()
+    n_status = len(rig.lis.statuses())
+    for _ in range(15):  # more than the pairer keeps waiting for a partner
+        rig.publish(image_message(depth_m, "32FC1"), None)
+        rig.lis.spin_until(lambda: False, 0.1)
+    values = rig.expect_drop("no_amplitude", before)
+    assert int(values["dropped_no_amplitude"]) >= before + 5
+    missing = [s for s in rig.lis.statuses()[n_status:]
+               if "nothing on /tof/amplitude/image_raw" in s.message
+               or "no amplitude was ever received" in s.message]
+    assert missing, [s.message for s in rig.lis.statuses()[-5:]]
+    assert missing[-1].level == DiagnosticStatus.ERROR
+    rig.expect_corrected()
+
+
+def test_diagnostics_report_every_reason_key_and_recover_to_ok(rig: BadInputRig) -> None:
+    rig.expect_corrected()
+    values = rig.lis.latest_values()
+    assert {f"dropped_{r}" for r in DROP_REASONS} <= set(values)
+    for key in ("published", "rate_hz", "latency_p50_ms", "latency_p99_ms", "last_error",
+                "received_depth", "amplitude_age_s"):
+        assert key in values
+    for _ in range(8):  # a clean stream for a few periods -> level OK again
+        rig.publish_good()
+        rig.lis.spin_until(lambda: False, 0.15)
+    assert rig.lis.spin_until(lambda: rig.lis.statuses()[-1].level == DiagnosticStatus.OK, 5.0), \
+        [s.message for s in rig.lis.statuses()[-3:]]
+
+
+# -- 3. weights that cannot be loaded: refuse to start, one clear line ------------------------
+@pytest.mark.parametrize("damage", ["garbage", "truncated", "missing"])
+def test_unloadable_weights_stop_the_node_with_one_clear_line(
+        weights: dict[str, Path], tmp_path: Path, damage: str) -> None:
+    bad = tmp_path / "bad.npz"
+    if damage == "garbage":
+        bad.write_bytes(b"\x93NUMPY this is not a weights file" * 10)
+    elif damage == "truncated":
+        data = weights["small"].read_bytes()
+        bad.write_bytes(data[: len(data) // 2])
+    log = tmp_path / "corrector.log"
+    process = start_corrector(bad, WEIGHTS_DOMAIN, log)
+    try:
+        code = process.wait(90)
+    finally:
+        stop_node(process)
+    lines = [line for line in log.read_text().splitlines() if line.strip()]
+    assert code != 0
+    assert len(lines) == 1, lines
+    assert lines[0].startswith("corrector: cannot start:") and str(bad) in lines[0], lines
+
+
+# -- 4. a real Azure Kinect frame -----------------------------------------------------------
+def azure_kinect_nfov_unbinned_camera_info(calibration_json: Path) -> CameraInfo:
+    """CameraInfo of the 640x576 NFOV-unbinned depth image from the factory calibration.
+
+    ``ModelParameters`` (cx, cy, fx, fy, k1..k6, codx, cody, p2, p1) are normalised by the
+    1024x1024 calibration image (``SensorWidth`` x ``SensorHeight``) with (0, 0) at the corner of
+    the top-left pixel. The Azure Kinect SDK's NFOV-unbinned mode crops that image at offset
+    (192, 180) to 640x576 and shifts to pixel-centred coordinates (-0.5): see
+    ``transformation_get_mode_specific_depth_camera_calibration`` in the SDK.
+    """
+    cal = json.loads(calibration_json.read_text())["CalibrationInformation"]["Cameras"]
+    depth = next(c for c in cal if c["Purpose"] == "CALIBRATION_CameraPurposeDepth")
+    p = depth["Intrinsics"]["ModelParameters"]
+    sw, sh = depth["SensorWidth"], depth["SensorHeight"]
+    cx, cy = p[0] * sw - 192 - 0.5, p[1] * sh - 180 - 0.5
+    fx, fy = p[2] * sw, p[3] * sh
+    k1, k2, k3, k4, k5, k6, _codx, _cody, p2, p1 = p[4:14]
+    return CameraInfo(width=640, height=576, distortion_model="rational_polynomial",
+                      d=[k1, k2, p1, p2, k3, k4, k5, k6],
+                      k=[fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+                      r=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                      p=[fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
+
+
+@pytest.mark.skipif(not REALDATA.is_dir(), reason="shared/realdata is not present")
+def test_real_azure_kinect_frame_comes_out_corrected(weights: dict[str, Path],
+                                                     tmp_path: Path) -> None:
+    depth = np.load(REALDATA / "depth_000.npy")   # (576, 640) uint16 mm, 0 = invalid
+    ir = np.load(REALDATA / "ir_000.npy")         # (576, 640) uint16, saturates at 65535
+    assert depth.shape == ir.shape == (576, 640) and (ir == 65535).any() and (depth == 0).any()
+    info = azure_kinect_nfov_unbinned_camera_info(REALDATA / "calibration.json")
+    assert 500 < info.k[0] < 510 and 320 < info.k[2] < 345 and 330 < info.k[5] < 360
+    log = tmp_path / "corrector.log"
+    process = start_corrector(weights["paper"], REAL_DOMAIN, log)
+    got: dict[str, dict[int, object]] = {"depth": {}, "info": {}, "edges": {}, "confidence": {}}
+    try:
+        with listener(REAL_DOMAIN) as lis:
+            node = lis.node
+            base = OUTPUT.rsplit("/", 1)[0]
+            for key, topic, kind in (("depth", OUTPUT, Image), ("info", f"{base}/camera_info",
+                                     CameraInfo), ("edges", f"{base}/edges", Image),
+                                     ("confidence", f"{base}/confidence", Image)):
+                node.create_subscription(kind, topic,
+                                         lambda m, k=key: got[k].__setitem__(stamp_ns(m), m),
+                                         DEEP)
+            qos = qos_profile_sensor_data
+            pubs = [node.create_publisher(kind, topic, qos) for kind, topic in
+                    ((Image, "/tof/depth/image_raw"), (Image, "/tof/amplitude/image_raw"),
+                     (CameraInfo, "/tof/camera_info"))]
+            wait_for_corrector(lis, process, log)
+            assert lis.spin_until(lambda: all(p.get_subscription_count() >= 1 for p in pubs), 30)
+            deadline = time.monotonic() + 60
+            stamp = None
+            while time.monotonic() < deadline:  # best effort: retry until it comes through
+                t = node.get_clock().now().to_msg()
+                msgs = (image_message(depth, "16UC1", "depth_camera_link"),
+                        image_message(ir, "mono16", "depth_camera_link"), info)
+                for msg, pub in zip(msgs, pubs, strict=True):
+                    msg.header.stamp = t
+                    pub.publish(msg)
+                stamp = t.sec * 1_000_000_000 + t.nanosec
+                if lis.spin_until(lambda s=stamp: all(s in v for v in got.values()), 5.0):
+                    break
+            else:
+                pytest.fail(f"no output; log:\n{log.read_text()[-3000:]}")
+            n_diag = len(lis.diagnostics)
+            lis.spin_until(lambda: len(lis.diagnostics) >= n_diag + 2, 5.0)
+            values = lis.latest_values()
+    finally:
+        code = stop_node(process)
+    assert code == 0, log.read_text()[-3000:]
+    assert values["dropped_total"] == "0", values
+
+    out, out_info = got["depth"][stamp], got["info"][stamp]
+    assert (out.encoding, out.width, out.height) == ("16UC1", 180, 140)
+    assert out.header.frame_id == "depth_camera_link"
+    # CameraInfo of the central 180x140 crop: principal point shifted, distortion kept.
+    left, top = (640 - 180) // 2, (576 - 140) // 2
+    assert (out_info.width, out_info.height) == (180, 140)
+    np.testing.assert_allclose([out_info.k[0], out_info.k[2], out_info.k[4], out_info.k[5]],
+                               [info.k[0], info.k[2] - left, info.k[4], info.k[5] - top])
+    assert out_info.distortion_model == "rational_polynomial"
+    np.testing.assert_allclose(out_info.d, info.d)
+    # Valid input pixels come out valid, in the same range of depths.
+    raw = depth[top:top + 140, left:left + 180].astype(np.float64)
+    corrected = decoded(out).astype(np.float64)
+    valid_in = raw > 0
+    assert valid_in.mean() > 0.5
+    assert (corrected[valid_in] > 0).mean() > 0.95
+    assert not (corrected[~valid_in] > 0).any()
+    assert np.median(np.abs(corrected - raw)[valid_in & (corrected > 0)]) < 30.0
+    edges, confidence = decoded(got["edges"][stamp]), decoded(got["confidence"][stamp])
+    assert edges.shape == confidence.shape == (140, 180) and set(np.unique(edges)) <= {0, 255}
+    assert np.all((confidence >= 0) & (confidence <= 1))

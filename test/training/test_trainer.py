@@ -1,0 +1,137 @@
+"""Trainer: learns a patch-dependent distortion, deterministic, resumable, writes weights."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from synthetic_training_frames import synthetic_frames
+
+from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+from tof_mpd_ros.correction.pipeline import correct
+from tof_mpd_ros.correction.weights import load_weights
+from tof_mpd_ros.errors import CalibrationError, WeightsError
+from tof_mpd_ros.frame import ToFFrame
+from tof_mpd_ros.training import TrainConfig, fit_calibration, train
+from tof_mpd_ros.training.trainer import split_frames
+
+H, W = 40, 48
+FAST = TrainConfig(epochs=3, val_fraction=0.25, val_samples_per_frame=500,
+                   max_samples_per_frame=600)
+
+
+@pytest.fixture(scope="module")
+def frames() -> list[ToFFrame]:
+    return synthetic_frames(8, seed=0)
+
+
+@pytest.fixture(scope="module")
+def identity() -> IntrinsicCalibration:
+    return IntrinsicCalibration.identity(H, W)
+
+
+def _params(model) -> list[torch.Tensor]:
+    return [p.detach().clone() for p in (*model.range_net.parameters(),
+                                         *model.boundary_nets.parameters())]
+
+
+def _rmse(model, test_frames, use_f: bool) -> float:
+    errs = []
+    for f in test_frames:
+        res = correct(model, f.range_mm, f.amplitude, use_range_net=use_f, use_boundary=False)
+        ok = np.isfinite(f.reference_mm)
+        errs.append(res.range_f_mm[ok] - f.reference_mm[ok])
+    return float(np.sqrt(np.mean(np.concatenate(errs) ** 2)))
+
+
+def test_training_removes_most_of_a_learnable_distortion(frames, identity) -> None:
+    model, history = train(frames, identity, TrainConfig(epochs=8, val_fraction=0.25),
+                           seed=0, progress=False)
+    held_out = synthetic_frames(4, seed=123)
+    before, after = _rmse(model, held_out, False), _rmse(model, held_out, True)
+    assert before > 2.0                  # the over-shoot bump dominates the raw error
+    assert after < 0.45 * before         # F removes most of it on unseen frames
+    assert history[-1]["loss_range"] < 0.3 * history[0]["loss_range"]
+    assert history[-1]["val_rmse_mm"] < 0.5 * history[-1]["val_rmse_before_mm"]
+    assert history[-1]["val_edge_recall"] > 0.8   # G heads fire on the box outline
+    assert history[-1]["patches_per_s"] > 0
+
+
+def test_same_seed_same_model_other_seed_differs(frames, identity) -> None:
+    a, ha = train(frames, identity, FAST, seed=5, progress=False)
+    b, hb = train(frames, identity, FAST, seed=5, progress=False)
+    c, _ = train(frames, identity, FAST, seed=6, progress=False)
+    assert all(torch.equal(p, q) for p, q in zip(_params(a), _params(b), strict=True))
+    assert [h["loss_range"] for h in ha] == [h["loss_range"] for h in hb]
+    assert not torch.equal(_params(a)[0], _params(c)[0])
+
+
+def test_resume_equals_uninterrupted_run(frames, identity, tmp_path: Path) -> None:
+    full, h_full = train(frames, identity, FAST, seed=3, progress=False)
+    first, _ = train(frames, identity, TrainConfig(**{**FAST.__dict__, "epochs": 1}), seed=3,
+                     checkpoint_dir=tmp_path, progress=False)
+    assert (tmp_path / "checkpoint.pt").is_file()
+    resumed, h_res = train(frames, identity, FAST, seed=3, checkpoint_dir=tmp_path,
+                           progress=False)
+    assert all(torch.equal(p, q) for p, q in zip(_params(full), _params(resumed), strict=True))
+    assert [h["loss_range"] for h in h_res] == [h["loss_range"] for h in h_full]
+    assert not torch.equal(_params(first)[0], _params(full)[0])
+    state = torch.load(tmp_path / "checkpoint.pt", weights_only=True)   # no pickle needed
+    assert state["epoch"] == 3
+
+
+def test_checkpoint_of_another_run_or_corrupt_is_refused(frames, identity, tmp_path) -> None:
+    train(frames, identity, FAST, seed=1, checkpoint_dir=tmp_path, progress=False)
+    with pytest.raises(WeightsError, match="belongs to another run"):
+        train(frames, identity, FAST, seed=2, checkpoint_dir=tmp_path, progress=False)
+    (tmp_path / "checkpoint.pt").write_bytes(b"garbage")
+    with pytest.raises(WeightsError, match="unreadable"):
+        train(frames, identity, FAST, seed=1, checkpoint_dir=tmp_path, progress=False)
+
+
+def test_weights_file_written_and_loadable(frames, identity, tmp_path: Path) -> None:
+    path = tmp_path / "model.npz"
+    model, _ = train(frames, identity, FAST, seed=0, weights_path=path, progress=False)
+    back = load_weights(path, expected_shape=(H, W))
+    assert back.metadata["file"]["training_data_digest"] == model.metadata[
+        "training_data_digest"]
+    assert back.encoding == model.encoding
+    f = frames[0]
+    np.testing.assert_array_equal(
+        correct(back, f.range_mm, f.amplitude, use_boundary=False).range_f_mm,
+        correct(model, f.range_mm, f.amplitude, use_boundary=False).range_f_mm)
+
+
+def test_split_is_by_frame_and_seeded() -> None:
+    tr, va = split_frames(10, 0.2, seed=0)
+    assert len(va) == 2 and sorted(tr + va) == list(range(10))
+    assert split_frames(10, 0.2, seed=0) == (tr, va)
+    assert split_frames(1, 0.5, seed=0) == ([0], [])
+
+
+def test_fit_calibration_from_checkerboard_frames() -> None:
+    rng = np.random.default_rng(0)
+    c0, c1, c2 = rng.normal(0, 10, (H, W)), rng.uniform(0.97, 1.03, (H, W)), rng.normal(
+        0, 5, (H, W))
+    boards = []
+    for _ in range(12):
+        true = rng.uniform(250, 500) + rng.normal(0, 20, (H, W))
+        amp = rng.uniform(0.1, 1.0, (H, W))
+        obs = (true - c0 - c2 * amp) / c1
+        boards.append(ToFFrame(obs, amp, frames_intrinsics(), reference_mm=true))
+    calib = fit_calibration(boards, ridge=1e-6)
+    np.testing.assert_allclose(calib.c1, c1, atol=1e-4)
+    with pytest.raises(CalibrationError, match="got none"):
+        fit_calibration([])
+    from dataclasses import replace
+
+    with pytest.raises(CalibrationError, match="frame 1 has no reference_mm"):
+        fit_calibration([boards[0], replace(boards[1], reference_mm=None)])
+
+
+def frames_intrinsics():
+    from tof_mpd_ros.camera import Intrinsics
+
+    return Intrinsics.from_fov(W, H, 40.0)

@@ -1,0 +1,231 @@
+"""One weights file for the whole correction model, loadable without executing code.
+
+Format: an ``.npz`` (zip) of named float32/uint8/str arrays read with ``allow_pickle=False``:
+
+* ``metadata``: a 0-d str array holding JSON: ``format``, ``format_version``, ``crop``
+  (width, height), ``architecture`` (both networks), ``encoding`` and ``geodesic`` constants,
+  ``package_version``, ``code_revision``, ``training_data_digest``, ``created_utc``,
+  ``array_digest`` (SHA-256 over every other array) and free-form ``extra`` provenance;
+* ``calibration/<name>``: :meth:`IntrinsicCalibration.to_arrays`;
+* ``range_net/<param>`` and ``boundary_nets/<param>``: the networks' state dicts.
+
+Every way a file can be wrong (missing, not a zip, truncated, bit-flipped, other format or version,
+arrays that do not fit the declared architecture, another crop) raises :class:`WeightsError`
+saying what was expected and what was found.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+import json
+import os
+import subprocess
+import zipfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from .. import __version__
+from ..errors import TofMpdError, WeightsError
+from .calibration import IntrinsicCalibration
+from .encoding import EncodingConfig
+from .networks import BoundaryNets, RangeRecoveryNet
+from .pipeline import CorrectionModel, GeodesicParams
+
+FORMAT = "tof_mpd_ros.correction_model"
+FORMAT_VERSION = 1
+_PREFIXES = ("calibration/", "range_net/", "boundary_nets/")
+
+
+def code_revision() -> str:
+    """``git describe --always --dirty`` of the source tree, or ``"unknown"`` outside git."""
+    try:
+        out = subprocess.run(["git", "describe", "--always", "--dirty"],
+                             cwd=Path(__file__).resolve().parent, capture_output=True,
+                             text=True, timeout=5, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return out.stdout.strip() or "unknown"
+
+
+def architecture(model: CorrectionModel) -> dict[str, Any]:
+    """The networks' shapes as plain JSON data."""
+    f, g = model.range_net, model.boundary_nets
+    return {"range_net": {"n_features": f.n_features, "hidden": list(f.hidden),
+                          "target_clip_mm": f.target_clip_mm},
+            "boundary_nets": {"n_features": g.n_features, "hidden": list(g.hidden),
+                              "n_heads": g.n_heads}}
+
+
+def array_digest(arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 over names, dtypes, shapes and bytes of ``arrays`` (sorted by name)."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def _model_arrays(model: CorrectionModel) -> dict[str, np.ndarray]:
+    arrays = {f"calibration/{k}": v for k, v in model.calibration.to_arrays().items()}
+    for prefix, net in (("range_net/", model.range_net), ("boundary_nets/", model.boundary_nets)):
+        for k, v in net.state_dict().items():
+            arrays[prefix + k] = v.detach().to("cpu", torch.float32).numpy()
+    return arrays
+
+
+def save_weights(path: str | os.PathLike[str], model: CorrectionModel, *,
+                 training_data_digest: str = "", overwrite: bool = False) -> Path:
+    """Write ``model`` to one ``.npz`` file atomically (temporary file, then rename).
+
+    Args:
+        path: destination file.
+        model: the model to save; ``model.metadata`` is stored under ``extra`` (must be JSON).
+        training_data_digest: digest of the data the networks were trained on.
+        overwrite: replace an existing file (refused by default).
+
+    Returns:
+        The path written.
+
+    Raises:
+        WeightsError: the file exists and ``overwrite`` is False, metadata is not JSON, or the
+            write fails.
+    """
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise WeightsError(f"weights file {path} exists; pass overwrite=True to replace it")
+    arrays = _model_arrays(model)
+    h, w = model.shape
+    meta = {"format": FORMAT, "format_version": FORMAT_VERSION,
+            "crop": {"width": w, "height": h}, "architecture": architecture(model),
+            "encoding": model.encoding.as_dict(),
+            "geodesic": {"k": model.geodesic.k, "sigma": model.geodesic.sigma,
+                         "step": model.geodesic.step},
+            "package_version": __version__, "code_revision": code_revision(),
+            "training_data_digest": training_data_digest
+            or str(model.metadata.get("training_data_digest", "")),
+            "created_utc": dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+            "array_digest": array_digest(arrays), "extra": model.metadata}
+    try:
+        arrays["metadata"] = np.array(json.dumps(meta, sort_keys=True))
+    except (TypeError, ValueError) as err:
+        raise WeightsError(f"model.metadata must be JSON-serialisable: {err}") from err
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+        os.replace(tmp, path)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        raise WeightsError(f"cannot write weights file {path}: {err}") from err
+    return path
+
+
+def _read_arrays(path: Path) -> dict[str, np.ndarray]:
+    """Every array of the npz, without pickle; any read failure becomes a WeightsError."""
+    if not path.is_file():
+        raise WeightsError(f"weights file not found: {path}")
+    try:
+        with np.load(path, allow_pickle=False) as npz:
+            return {k: npz[k] for k in npz.files}
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as err:
+        raise WeightsError(f"{path} is not a readable weights file (expected a {FORMAT} .npz; "
+                           f"truncated or corrupt?): {type(err).__name__}: {err}") from err
+    except Exception as err:  # zlib.error and friends: corrupt compressed data
+        raise WeightsError(f"{path} is corrupt: {type(err).__name__}: {err}") from err
+
+
+def _read_metadata(path: Path, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
+    if "metadata" not in arrays:
+        raise WeightsError(f"{path} has no 'metadata' entry; expected a {FORMAT} file")
+    try:
+        meta = json.loads(str(arrays.pop("metadata")))
+    except (json.JSONDecodeError, TypeError) as err:
+        raise WeightsError(f"{path}: metadata is not valid JSON: {err}") from err
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        found = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
+        raise WeightsError(f"{path}: expected format {FORMAT!r}, found {found!r}")
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise WeightsError(f"{path}: format version {meta.get('format_version')!r} is not "
+                           f"supported by this code (expects {FORMAT_VERSION}); "
+                           f"written by tof_mpd_ros {meta.get('package_version', '?')}")
+    if meta.get("array_digest") != array_digest(arrays):
+        raise WeightsError(f"{path}: array contents do not match the stored digest (corrupt "
+                           "or edited file)")
+    return meta
+
+
+def _sub(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
+    return {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
+
+
+def _load_net(path: Path, net: torch.nn.Module, params: dict[str, np.ndarray], name: str) -> None:
+    expected = {k: tuple(v.shape) for k, v in net.state_dict().items()}
+    found = {k: tuple(v.shape) for k, v in params.items()}
+    if expected != found:
+        diff = sorted(set(expected.items()) ^ set(found.items()))
+        raise WeightsError(f"{path}: {name} parameters do not match its declared architecture; "
+                           f"expected {expected}, found {found} (differences: {diff})")
+    net.load_state_dict({k: torch.from_numpy(np.array(v, np.float32)) for k, v in params.items()})
+
+
+def _build(path: Path, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> CorrectionModel:
+    try:
+        arch = meta["architecture"]
+        encoding = EncodingConfig(**meta["encoding"])
+        geodesic = GeodesicParams(**meta["geodesic"])
+        f_arch, g_arch = arch["range_net"], arch["boundary_nets"]
+        f = RangeRecoveryNet(int(f_arch["n_features"]), tuple(f_arch["hidden"]),
+                             float(f_arch["target_clip_mm"]))
+        g = BoundaryNets(int(g_arch["n_features"]), tuple(g_arch["hidden"]),
+                         int(g_arch["n_heads"]))
+        calibration = IntrinsicCalibration.from_arrays(_sub(arrays, "calibration/"))
+    except (KeyError, TypeError, ValueError, TofMpdError) as err:
+        raise WeightsError(f"{path}: malformed metadata or calibration: "
+                           f"{type(err).__name__}: {err}") from err
+    _load_net(path, f, _sub(arrays, "range_net/"), "range_net")
+    _load_net(path, g, _sub(arrays, "boundary_nets/"), "boundary_nets")
+    try:
+        model = CorrectionModel(calibration, encoding, f, g, geodesic, dict(meta.get("extra", {})))
+    except TofMpdError as err:
+        raise WeightsError(f"{path}: networks do not fit the encoding: {err}") from err
+    crop = meta.get("crop", {})
+    if (crop.get("height"), crop.get("width")) != model.shape:
+        raise WeightsError(f"{path}: metadata crop {crop} disagrees with the calibration's "
+                           f"{model.shape[1]}x{model.shape[0]}")
+    return model
+
+
+def load_weights(path: str | os.PathLike[str], *,
+                 expected_shape: tuple[int, int] | None = None) -> CorrectionModel:
+    """Read a weights file written by :func:`save_weights`.
+
+    Args:
+        path: the ``.npz`` file.
+        expected_shape: ``(H, W)`` of the frames it will correct; another crop is an error.
+
+    Returns:
+        The :class:`CorrectionModel` (CPU, float32); ``metadata`` holds the stored ``extra``
+        plus the file's provenance under ``"file"``.
+
+    Raises:
+        WeightsError: missing, corrupt, truncated, other format/version, wrong architecture,
+            or a crop other than ``expected_shape``.
+    """
+    path = Path(path)
+    arrays = _read_arrays(path)
+    meta = _read_metadata(path, arrays)
+    unknown = [k for k in arrays if not k.startswith(_PREFIXES)]
+    if unknown:
+        raise WeightsError(f"{path}: unexpected entries {unknown}")
+    model = _build(path, meta, arrays)
+    if expected_shape is not None and tuple(expected_shape) != model.shape:
+        h, w = model.shape
+        raise WeightsError(f"{path}: weights are for a {w}x{h} (W x H) crop, expected "
+                           f"{expected_shape[1]}x{expected_shape[0]}")
+    model.metadata["file"] = {k: v for k, v in meta.items() if k != "extra"}
+    return model

@@ -1,0 +1,276 @@
+"""The mismatch analysis: predict, locate, name (fit and rank every candidate), model, show.
+
+:func:`analyse` runs the whole method on real frames and returns an :class:`Analysis`; the
+report module renders it. Naming is greedy: every candidate is fitted on the training pixels and
+scored on the held-out ones; the best is kept if significant, then the search repeats on the
+remaining residual (up to ``max_effects``). ``none`` is the answer when no candidate is.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import stats
+
+from ..errors import MismatchError
+from ..frame import ToFFrame
+from ..sim.tof import ToFConfig
+from .data import camera_motion, check_frames, split_frames
+from .features import DESCRIPTORS, all_descriptors
+from .fit import CANDIDATES, FitResult, Problem, fit_effect
+from .likelihood import REFERENCE_NOISE_MM, total_sigma
+from .locate import describe_stratum, locate, strata
+from .predict import FramePredictor
+
+_log = logging.getLogger(__name__)
+
+#: a candidate is significant when its score (millinats per held-out pixel, after the
+#: complexity penalty) and its tile t-statistic both exceed these
+MIN_SCORE = 5.0
+MIN_T = 3.0
+#: parsimony: among candidates scoring within this fraction of the best, the one with the fewest
+#: parameters is preferred (a richer effect can mimic a simpler one, e.g. subsurface blur with
+#: no delay is a mixed-pixel blur)
+PARSIMONY = 0.15
+#: "interior" metrics leave out pixels this close to a depth edge (px), where flying pixels and
+#: the reference's own edge errors dominate whatever the model
+INTERIOR_EDGE_PX = 2.0
+
+
+@dataclass
+class Analysis:
+    """Result of :func:`analyse` (arrays are per held-out frame).
+
+    Attributes:
+        selected: effects found, strongest first (empty = no significant mismatch).
+        rounds: per greedy round, every candidate's fit, best score first.
+        evidence: effect -> evidence in words (from the first round it was ranked in).
+        config_before, config_after: the simulator config given and the fitted one.
+        metrics: held-out RMSE / MAE / excess RMSE before and after, pixel counts.
+        location: :func:`.locate.locate` of the residual before modelling (all frames).
+        test_frames: indices of the held-out frames shown.
+        residual_before, residual_after: (H, W) float64 real − predicted range, mm.
+        sigma_before, sigma_after: (H, W) float64 predicted residual std, mm.
+    """
+
+    selected: list[str]
+    rounds: list[list[FitResult]]
+    evidence: dict[str, str]
+    config_before: ToFConfig
+    config_after: ToFConfig
+    metrics: dict[str, float]
+    location: dict[str, Any]
+    test_frames: list[int]
+    residual_before: list[np.ndarray] = field(default_factory=list)
+    residual_after: list[np.ndarray] = field(default_factory=list)
+    sigma_before: list[np.ndarray] = field(default_factory=list)
+    sigma_after: list[np.ndarray] = field(default_factory=list)
+
+    @property
+    def parameters(self) -> dict[str, dict[str, float]]:
+        """Fitted parameters of each selected effect (the winner of its round)."""
+        return {rnd[0].effect: rnd[0].parameters for rnd in self.rounds
+                if rnd and rnd[0].effect in self.selected}
+
+    def ranking(self) -> list[dict[str, Any]]:
+        """First-round ranking (then later rounds' winners), JSON-ready."""
+        rows = []
+        for k, rnd in enumerate(self.rounds):
+            for r in rnd:
+                rows.append({"round": k + 1, "effect": r.effect, "score": round(r.score, 3),
+                             "t": round(r.t_stat, 2), "n_params": r.n_params,
+                             "test_gain_mnats": round(1000 * r.test_gain, 3),
+                             "penalty_mnats": round(1000 * r.penalty, 3),
+                             "parameters": r.parameters,
+                             "evidence": self.evidence.get(f"{k + 1}:{r.effect}", r.note)})
+        return rows
+
+
+def rank(results: list[FitResult]) -> list[FitResult]:
+    """Best score first, except that a candidate within ``PARSIMONY`` of the best score with
+    fewer parameters goes first (ties of explanatory power go to the simpler physics)."""
+    ordered = sorted(results, key=lambda r: -r.score)
+    if not ordered or ordered[0].score <= 0:
+        return ordered
+    top = ordered[0].score
+    close = [r for r in ordered if r.score >= (1.0 - PARSIMONY) * top and not r.note]
+    simplest = min(close, key=lambda r: (r.n_params, -r.score))
+    return [simplest] + [r for r in ordered if r is not simplest]
+
+
+def _significant(r: FitResult, min_score: float, min_t: float) -> bool:
+    return r.score > min_score and r.t_stat > min_t and not r.note
+
+
+def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
+            max_effects: int = 2, candidates: Sequence[str] = CANDIDATES,
+            reference_noise_mm: float = REFERENCE_NOISE_MM, min_score: float = MIN_SCORE,
+            min_t: float = MIN_T,
+            progress: Callable[[str], None] | None = None) -> Analysis:
+    """Locate, name, model and show the sim-vs-real mismatch of ``frames``.
+
+    Args:
+        frames: real frames with references (one camera).
+        config: the simulator configuration to diagnose (None = the nominal cell).
+        max_effects: most effects to select (greedy).
+        candidates: effect names to consider.
+        reference_noise_mm: std of the reference range, mm.
+        min_score, min_t: significance thresholds (see ``MIN_SCORE``, ``MIN_T``).
+        progress: called with a short message after each fitted candidate.
+
+    Raises:
+        MismatchError: no frames, missing references, or nothing to compare.
+    """
+    check_frames(frames)
+    base = ToFConfig.nominal() if config is None else config
+    motions = camera_motion(frames)
+    predictors = [FramePredictor(f, base, frame_index=i, motion=m)
+                  for i, (f, m) in enumerate(zip(frames, motions, strict=True))]
+    real = [np.asarray(f.range_mm, dtype=np.float64) for f in frames]
+    usable = [np.isfinite(r) & np.isfinite(p.predict().range_mm)
+              for r, p in zip(real, predictors, strict=True)]
+    if not any(u.any() for u in usable):
+        raise MismatchError("no pixel has both a real range and a predicted one")
+    problem = Problem(real, predictors, split_frames(frames), usable, reference_noise_mm)
+    descriptors = all_descriptors(predictors, motions)
+    residual0, sigma0 = _residuals(problem, None)
+    location = locate(descriptors, residual0, sigma0)
+
+    selected: list[str] = []
+    rounds: list[list[FitResult]] = []
+    evidence: dict[str, str] = {}
+    for k in range(max_effects):
+        results = []
+        for name in candidates:
+            if name in selected:
+                continue
+            results.append(fit_effect(problem, name))
+            if progress:
+                progress(name)
+        results = rank(results)
+        rounds.append(results)
+        for r in results:
+            evidence[f"{k + 1}:{r.effect}"] = explain(problem, r, descriptors)
+        best = results[0] if results else None
+        if best is None or not _significant(best, min_score, min_t):
+            break
+        selected.append(best.effect)
+        _log.info("round %d: %s (score %.1f, t %.1f)", k + 1, best.effect, best.score,
+                  best.t_stat)
+        problem = Problem(real, [p.rebased(best.config) for p in problem.predictors],
+                          problem.split, usable, reference_noise_mm)
+    return _finish(problem, base, selected, rounds, evidence, location, predictors,
+                   descriptors)
+
+
+def _residuals(problem: Problem, config: ToFConfig | None,
+               frames: Sequence[int] | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Per frame (all, or ``frames``): residual and σ on the usable pixels (NaN elsewhere)."""
+    idx = range(len(problem.real_mm)) if frames is None else frames
+    res, sig = [], []
+    for i in idx:
+        pred = problem.predictors[i].predict(config)
+        r = np.where(problem.usable[i], problem.real_mm[i] - pred.range_mm, np.nan)
+        res.append(r)
+        sig.append(total_sigma(pred.noise_mm, problem.reference_noise_mm))
+    return res, sig
+
+
+def _finish(problem: Problem, base: ToFConfig, selected: list[str],
+            rounds: list[list[FitResult]], evidence: dict[str, str], location: dict[str, Any],
+            original: list[FramePredictor],
+            descriptors: Sequence[dict[str, np.ndarray]]) -> Analysis:
+    after = problem.base
+    test = problem.frames_of("test")
+    masks = problem.masks("test")
+    before_p = Problem(problem.real_mm, original, problem.split, problem.usable,
+                       problem.reference_noise_mm)
+    rb, sb = _residuals(before_p, None, test)
+    ra, sa = _residuals(problem, None, test)
+    rb = [np.where(masks[i], r, np.nan) for i, r in zip(test, rb, strict=True)]
+    ra = [np.where(masks[i], r, np.nan) for i, r in zip(test, ra, strict=True)]
+    metrics = {**residual_metrics(rb, sb, "before"), **residual_metrics(ra, sa, "after")}
+    inner = [descriptors[i]["edge_distance_px"] >= INTERIOR_EDGE_PX for i in test]
+    for tag, res, sig in (("before", rb, sb), ("after", ra, sa)):
+        cut = [np.where(m, r, np.nan) for m, r in zip(inner, res, strict=True)]
+        metrics.update({f"interior_{k}": v for k, v in residual_metrics(cut, sig, tag).items()})
+    return Analysis(selected, rounds, evidence, base, after, metrics, location, test,
+                    rb, ra, sb, sa)
+
+
+def residual_metrics(residual: Sequence[np.ndarray], sigma: Sequence[np.ndarray],
+                     tag: str) -> dict[str, float]:
+    """RMSE, MAE, excess RMSE (beyond the noise model) and pixel count of residuals (mm)."""
+    r = np.concatenate([x.ravel() for x in residual])
+    s = np.concatenate([x.ravel() for x in sigma])
+    ok = np.isfinite(r) & np.isfinite(s)
+    if not ok.any():
+        return {f"rmse_{tag}_mm": float("nan"), f"mae_{tag}_mm": float("nan"),
+                f"excess_rmse_{tag}_mm": float("nan"), f"pixels_{tag}": 0}
+    r, s = r[ok], s[ok]
+    mse = float(np.mean(r ** 2))
+    return {f"rmse_{tag}_mm": float(np.sqrt(mse)), f"mae_{tag}_mm": float(np.mean(np.abs(r))),
+            f"median_abs_{tag}_mm": float(np.median(np.abs(r))),
+            f"excess_rmse_{tag}_mm": float(np.sqrt(max(mse - float(np.mean(s ** 2)), 0.0))),
+            f"pixels_{tag}": int(r.size)}
+
+
+def explain(problem: Problem, result: FitResult,
+            descriptors: Sequence[dict[str, np.ndarray]]) -> str:
+    """Evidence in words: what the fitted effect corrects, where, and how well it matches."""
+    if result.note:
+        return result.note
+    test = problem.frames_of("test")
+    masks = problem.masks("test")
+    res, sig, corr, desc = [], [], [], {n: [] for n in DESCRIPTORS}
+    for i in test:
+        before = problem.predictors[i].predict()
+        after = problem.predictors[i].predict(result.config)
+        m = masks[i] & np.isfinite(after.range_mm)
+        res.append((problem.real_mm[i] - before.range_mm)[m])
+        sig.append(total_sigma(before.noise_mm, problem.reference_noise_mm)[m])
+        corr.append((after.range_mm - before.range_mm)[m])
+        for n in DESCRIPTORS:
+            desc[n].append(descriptors[i][n][m])
+    if not res or sum(x.size for x in res) < 10:
+        return "too few held-out pixels to judge"
+    r, s, c = (np.concatenate(x) for x in (res, sig, corr))
+    flat = {n: np.concatenate(v) for n, v in desc.items()}
+    params = ", ".join(f"{k} {v:.3g}" for k, v in result.parameters.items()) or "switched on"
+    words = [f"fitted {params}",
+             f"held-out gain {1000 * result.test_gain:.1f} mnats/px (t = {result.t_stat:.1f})"]
+    rc = np.clip(r, -6 * s, 6 * s)
+    if np.ptp(c) > 1e-6:
+        rho = float(np.corrcoef(c, rc)[0, 1])
+        words.append(f"its correction correlates {rho:.2f} with the residual "
+                     f"(RMS correction {np.sqrt(np.mean(c ** 2)):.2f} mm)")
+        words.append(_concentration(flat, c))
+    z2 = float(np.mean((rc / s) ** 2))
+    if result.effect == "noise_model" or abs(z2 - 1.0) > 0.5:
+        words.append(f"residual variance {z2:.2f}× the nominal noise model")
+    return "; ".join(w for w in words if w)
+
+
+def _concentration(flat: dict[str, np.ndarray], correction: np.ndarray) -> str:
+    """Where the correction is largest: the descriptor |correction| follows most closely."""
+    mag = np.abs(correction)
+    best, best_rho = None, 0.0
+    for name, values in flat.items():
+        ok = np.isfinite(values)
+        if ok.sum() < 10 or np.ptp(values[ok]) == 0:
+            continue
+        rho = float(np.nan_to_num(stats.spearmanr(values[ok], mag[ok]).statistic))
+        if abs(rho) > abs(best_rho):
+            best, best_rho = name, rho
+    if best is None or abs(best_rho) < 0.2:
+        return "correction spread evenly over the image"
+    ok = np.isfinite(flat[best])
+    st = strata(best, flat[best][ok], mag[ok], np.ones(int(ok.sum())))
+    top = max(st, key=lambda x: x.mean_mm)
+    return (f"correction concentrated where {describe_stratum(top.as_dict())} "
+            f"(mean {top.mean_mm:.2f} mm vs {mag.mean():.2f} mm overall; "
+            f"rank correlation {best_rho:.2f} with {best})")

@@ -1,0 +1,202 @@
+"""The concealed-effect benchmark of the mismatch tool (SPEC §5 "proof on concealed data").
+
+For each case a "real" sweep is generated (:mod:`.cases`) carrying a random concealed effect
+with random parameters, nothing (a control), or two effects. The frames are written as an
+interchange ``.npz``; the labels go to a separate ``labels.json`` that :func:`run_benchmark`
+reads only *after* the tool has answered. The tool runs blind on the ``.npz`` through the same
+path as ``tof-mpd mismatch`` and the scores are:
+
+* top-1 accuracy: the first selected effect is the (a) concealed one; a control is right when
+  the answer is ``none``;
+* false-alarm rate: controls with any effect selected;
+* parameter error: for correctly named effects, |fit − truth| / (realistic range), per
+  parameter, averaged;
+* held-out RMSE reduction: ``1 − after / before`` of the raw RMSE, and of the excess RMSE (the
+  part beyond the noise model) on interior pixels.
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import MismatchError
+from ..recordings import save_npz
+from .analyse import analyse
+from .cases import CONCEALABLE, generate_case
+from .data import load_frames
+from .fit import free_params
+from .report import _clean, to_json
+
+#: share of control cases and of two-effect cases in a benchmark
+CONTROL_SHARE = 0.2
+DOUBLE_SHARE = 0.15
+
+
+def case_plan(n_cases: int, seed: int) -> list[tuple[str, ...]]:
+    """Concealed effects of every case: controls, singles cycling over a shuffled library,
+    and pairs (deterministic in ``seed``)."""
+    if n_cases < 1:
+        raise MismatchError(f"--cases must be >= 1, got {n_cases}")
+    rng = np.random.default_rng([seed, 7])
+    n_ctrl = max(1, round(CONTROL_SHARE * n_cases))
+    n_double = round(DOUBLE_SHARE * n_cases) if n_cases >= 5 else 0
+    n_single = max(n_cases - n_ctrl - n_double, 0)
+    singles = []
+    while len(singles) < n_single:
+        singles.extend(CONCEALABLE[i] for i in rng.permutation(len(CONCEALABLE)))
+    doubles = [tuple(CONCEALABLE[i] for i in sorted(rng.choice(len(CONCEALABLE), 2,
+                                                                replace=False)))
+               for _ in range(n_double)]
+    plan: list[tuple[str, ...]] = ([()] * n_ctrl + [(s,) for s in singles[:n_single]]
+                                   + doubles)
+    return [plan[i] for i in rng.permutation(len(plan))]
+
+
+def parameter_error(effect: str, fitted: dict[str, float], truth: dict[str, Any]) -> float:
+    """Mean over the drawn parameters of |fit − truth| / (high − low) of the spec's range."""
+    errs = []
+    for p in free_params(effect):
+        if p.name in truth and p.name in fitted:
+            t = float(np.atleast_1d(truth[p.name])[0])
+            errs.append(abs(fitted[p.name] - t) / (p.high - p.low))
+    return float(np.mean(errs)) if errs else float("nan")
+
+
+def _generate_one(out: Path, i: int, effects: tuple[str, ...], seed: int,
+                  n_frames: int) -> dict[str, Any]:
+    """Write case ``i``'s frames (``cases/case_i.npz``) and return its label."""
+    path = out / "cases" / f"case_{i:03d}.npz"
+    case = generate_case(np.random.default_rng([seed, i]), effects, n_frames=n_frames)
+    save_npz(path, case.frames, overwrite=True)
+    return _clean({"case": i, "file": str(path.relative_to(out)), **case.labels})
+
+
+def _score_case(label: dict[str, Any], result: dict[str, Any]) -> dict[str, Any]:
+    truth = [e["name"] for e in label["effects"]]
+    selected = result["selected"]
+    correct = (not selected) if not truth else bool(selected) and selected[0] in truth
+    m = result["metrics"]
+    row = {"case": label["case"], "truth": truth, "selected": selected, "top1": correct,
+           "both_found": (set(truth) <= set(selected)) if len(truth) == 2 else None,
+           "rmse_before_mm": m["rmse_before_mm"], "rmse_after_mm": m["rmse_after_mm"],
+           "excess_before_mm": m["interior_excess_rmse_before_mm"],
+           "excess_after_mm": m["interior_excess_rmse_after_mm"],
+           "global_mean_residual_mm": result["location"]["global"].get("mean_mm"),
+           "global_variance_ratio": result["location"]["global"].get("variance_ratio"),
+           "parameter_error": {}}
+    for e in label["effects"]:
+        if e["name"] in result["parameters"]:
+            row["parameter_error"][e["name"]] = parameter_error(
+                e["name"], result["parameters"][e["name"]], e["params"])
+    return row
+
+
+def _ratio_cut(before: float | None, after: float | None) -> float | None:
+    if before is None or after is None or not before > 0:
+        return None
+    return 1.0 - after / before
+
+
+def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """Aggregate scores of scored cases."""
+    ctrl = [r for r in rows if not r["truth"]]
+    eff = [r for r in rows if r["truth"]]
+    cuts = [_ratio_cut(r["rmse_before_mm"], r["rmse_after_mm"]) for r in eff if r["top1"]]
+    ex = [_ratio_cut(r["excess_before_mm"], r["excess_after_mm"]) for r in eff
+          if r["top1"] and "noise_model" not in r["truth"]]
+    perr = [v for r in eff for v in r["parameter_error"].values() if np.isfinite(v)]
+    doubles = [r for r in eff if len(r["truth"]) == 2]
+
+    def mean(xs: list[Any]) -> float | None:
+        xs = [x for x in xs if x is not None]
+        return float(np.mean(xs)) if xs else None
+
+    def median(xs: list[Any]) -> float | None:
+        xs = [x for x in xs if x is not None]
+        return float(np.median(xs)) if xs else None
+
+    per_effect: dict[str, list[bool]] = {}
+    for r in eff:
+        if len(r["truth"]) == 1:
+            per_effect.setdefault(r["truth"][0], []).append(r["top1"])
+    return {
+        "cases": len(rows), "controls": len(ctrl), "effect_cases": len(eff),
+        "two_effect_cases": len(doubles),
+        "top1_accuracy": mean([r["top1"] for r in rows]),
+        "top1_accuracy_effect_cases": mean([r["top1"] for r in eff]),
+        "false_alarm_rate": mean([not r["top1"] for r in ctrl]),
+        "both_found_rate_two_effect_cases": mean([r["both_found"] for r in doubles]),
+        "parameter_error_median": median(perr),
+        "rmse_cut_mean": mean(cuts), "rmse_cut_median": median(cuts),
+        "excess_rmse_cut_interior_mean": mean(ex), "excess_rmse_cut_interior_median": median(ex),
+        "per_effect_top1": {k: mean(v) for k, v in sorted(per_effect.items())},
+    }
+
+
+def text_table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
+    """Plain-text table of the cases and the summary."""
+    lines = [f"{'case':>4}  {'truth':34s} {'selected':34s} ok  rmse b/a (mm)  excess b/a (mm)"]
+    for r in rows:
+        lines.append(
+            f"{r['case']:>4}  {'+'.join(r['truth']) or 'none':34s} "
+            f"{'+'.join(r['selected']) or 'none':34s} {'Y' if r['top1'] else 'n':2s}  "
+            f"{r['rmse_before_mm']:5.2f}/{r['rmse_after_mm']:5.2f}    "
+            f"{(r['excess_before_mm'] or 0):5.2f}/{(r['excess_after_mm'] or 0):5.2f}")
+    lines.append("")
+    for k, v in summary.items():
+        if not isinstance(v, dict):
+            lines.append(f"{k:36s} {v if not isinstance(v, float) else round(v, 4)}")
+    lines.append("per-effect top-1: " + ", ".join(
+        f"{k} {v:.2f}" for k, v in summary["per_effect_top1"].items()))
+    return "\n".join(lines)
+
+
+def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int = 8,
+                  progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Generate ``n_cases`` cases, run the tool blind on each, score, write JSON + table.
+
+    Writes ``cases/*.npz``, ``labels.json`` (hidden truth), ``results/case_XXX.json`` (the
+    tool's answers), ``benchmark.json`` and ``benchmark.txt`` into ``out_dir``.
+
+    Returns:
+        The ``benchmark.json`` document.
+    """
+    out = Path(out_dir)
+    (out / "cases").mkdir(parents=True, exist_ok=True)
+    (out / "results").mkdir(exist_ok=True)
+    plan = case_plan(n_cases, seed)
+    labels: list[dict[str, Any]] = []
+    t_gen, times = 0.0, []
+    for i, effects in enumerate(plan):
+        t0 = time.time()
+        labels.append(_generate_one(out, i, effects, seed, n_frames))
+        # labels live apart from the frames; the tool below is given the .npz only
+        (out / "labels.json").write_text(json.dumps(labels, indent=2))
+        t1 = time.time()
+        result = to_json(analyse(load_frames(out / f"cases/case_{i:03d}.npz")))
+        (out / "results" / f"case_{i:03d}.json").write_text(json.dumps(result, indent=2))
+        t_gen += t1 - t0
+        times.append(time.time() - t1)
+        if progress is not None:
+            progress(f"case {i}")
+    # scoring: the only place that reads the labels
+    rows = []
+    for label in json.loads((out / "labels.json").read_text()):
+        result = json.loads((out / "results" / f"case_{label['case']:03d}.json").read_text())
+        rows.append(_score_case(label, result))
+    summary = summarise(rows)
+    doc = _clean({"summary": summary, "cases": rows, "seed": seed, "n_frames": n_frames,
+                  "generation_s_per_case": t_gen / len(plan),
+                  "analysis_s_per_case_median": float(np.median(times)),
+                  "machine": {"platform": platform.platform(), "processor": platform.processor(),
+                              "python": platform.python_version()}})
+    (out / "benchmark.json").write_text(json.dumps(doc, indent=2))
+    (out / "benchmark.txt").write_text(text_table(rows, summary) + "\n")
+    return doc

@@ -1,0 +1,214 @@
+"""Concealed-effect test cases for the mismatch benchmark: "real" recordings the tool runs on.
+
+Each case is a short sweep of the camera over a random scene of the simulated cell. The "real"
+frames come from a path that differs from the tool's predictor on purpose, so the tool faces
+model mismatch as with a real camera:
+
+* geometry is ray-cast from the full scene, supersampled 3 x 3 per pixel (the predictor only
+  has the reference range image, one sample per pixel);
+* the reference is the structured-light fusion (noisy, with occlusion holes), not the truth;
+* pose errors are physical: a hand-eye error renders from the truly displaced camera, a time
+  offset renders from the pose the arm had ``offset_ms`` later along its (variable-speed)
+  trajectory, while the recording holds the nominal poses and stamps;
+* every other concealed effect is the simulator's effect module with drawn parameters, and
+  albedo, material and light transport follow the scene, not the predictor's assumptions.
+
+The labels (effect names and parameters) are returned separately; the tool never sees them.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..camera import Intrinsics
+from ..frame import ToFFrame
+from ..sim.poses import make_pose, pose_mm_to_m
+from ..sim.raycast import render_surface
+from ..sim.scene import Scene, make_scene
+from ..sim.structured_light import FusionConfig, reference_range
+from ..sim.tof import ToFConfig, render_tof
+from ..sim.tof.effects.wiggling import wiggle_mm
+from ..sim.tof.warp import rotation_matrix
+from ..sim.viewpoints import view_pose_mm
+
+#: effects the benchmark conceals; ``phase_wrapping`` is nominal and has no parameter, and at
+#: 30 MHz nothing in the workspace wraps, so it cannot be concealed in the cell
+CONCEALABLE = ("multipath", "mixed_pixels", "wiggling", "amplitude_bias", "lens_scatter",
+               "subsurface", "pixel_offset", "temperature_drift", "time_offset", "hand_eye",
+               "noise_model")
+#: image grid of the benchmark (the DS325 field of view at a reduced resolution, for speed)
+DEFAULT_INTRINSICS = Intrinsics.from_fov(96, 72, 74.0)
+#: seconds between frames of a sweep
+FRAME_PERIOD_S = 0.1
+#: a cheaper fusion than the paper's 10 x 3 scans (the benchmark needs many frames)
+BENCH_FUSION = FusionConfig(n_rotations=5, distance_offsets_mm=(-30.0, 30.0))
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A camera path: view parameters interpolated along s in [0, 1], with varying speed.
+
+    Attributes:
+        start, end: (height_mm, tilt_deg, azimuth_deg, roll_deg) at s = 0 and s = 1.
+        wobble: speed modulation in [0, 1): s(t) = t/T + wobble · sin(2π t/T) / (2π).
+        duration_s: T, the time of the whole sweep.
+    """
+
+    start: tuple[float, float, float, float]
+    end: tuple[float, float, float, float]
+    wobble: float
+    duration_s: float
+
+    def s_at(self, t_s: float) -> float:
+        x = t_s / self.duration_s
+        return x + self.wobble * math.sin(2.0 * math.pi * x) / (2.0 * math.pi)
+
+    def pose_mm(self, scene: Scene, t_s: float) -> np.ndarray:
+        """(4, 4) camera-to-base pose at time ``t_s`` (mm)."""
+        s = self.s_at(t_s)
+        view = [a + (b - a) * s for a, b in zip(self.start, self.end, strict=True)]
+        return view_pose_mm(scene.objects_centroid_mm(), scene.top_height_mm(), *view)
+
+
+def draw_sweep(rng: np.random.Generator, n_frames: int) -> Sweep:
+    """A random sweep 180–350 mm above the objects, tilt <= 30°, turning 20–45° in azimuth."""
+    h0 = rng.uniform(200.0, 330.0)
+    t0 = rng.uniform(5.0, 25.0)
+    a0 = rng.uniform(0.0, 360.0)
+    r0 = rng.uniform(-180.0, 180.0)
+    end = (float(np.clip(h0 + rng.uniform(-40.0, 40.0), 180.0, 350.0)),
+           float(np.clip(t0 + rng.uniform(-8.0, 8.0), 0.0, 30.0)),
+           a0 + rng.choice([-1.0, 1.0]) * rng.uniform(20.0, 45.0), r0 + rng.uniform(-15.0, 15.0))
+    return Sweep((h0, t0, a0, r0), end, float(rng.uniform(0.5, 0.9)),
+                 n_frames * FRAME_PERIOD_S)
+
+
+def _unit(rng: np.random.Generator) -> np.ndarray:
+    v = rng.standard_normal(3)
+    return v / np.linalg.norm(v)
+
+
+def _wiggle_draw(rng: np.random.Generator, n_frames: int) -> dict[str, Any]:
+    nominal = ToFConfig.nominal().params("wiggling")
+    r = np.linspace(150.0, 450.0, 61)
+    base = wiggle_mm(r, 30e6, nominal["a1_mm"], nominal["p1_rad"], nominal["a2_mm"],
+                     nominal["p2_rad"])
+    while True:  # a wiggle that differs from the nominal one by >= 1.5 mm RMS
+        p = {"a1_mm": rng.uniform(0.0, 10.0), "p1_rad": rng.uniform(-math.pi, math.pi),
+             "a2_mm": rng.uniform(0.0, 5.0), "p2_rad": rng.uniform(-math.pi, math.pi)}
+        diff = wiggle_mm(r, 30e6, p["a1_mm"], p["p1_rad"], p["a2_mm"], p["p2_rad"]) - base
+        if np.sqrt(np.mean(diff ** 2)) >= 1.5:
+            return p
+
+
+def _sign(rng: np.random.Generator) -> float:
+    return float(rng.choice([-1.0, 1.0]))
+
+
+#: effect -> parameter draw(rng, n_frames): realistic values that still matter in the cell
+DRAWS: dict[str, Callable[[np.random.Generator, int], dict[str, Any]]] = {
+    "multipath": lambda rng, n: {"gain": (rng.uniform(1.7, 3.0) if rng.uniform() < 0.75
+                                          else rng.uniform(0.0, 0.3))},
+    "mixed_pixels": lambda rng, n: {"psf_sigma_px": rng.uniform(0.8, 1.5)},
+    "wiggling": _wiggle_draw,
+    "amplitude_bias": lambda rng, n: {"bias_mm": _sign(rng) * rng.uniform(5.0, 10.0),
+                                      "exponent": rng.uniform(0.3, 1.2)},
+    "lens_scatter": lambda rng, n: {"fraction": rng.uniform(0.03, 0.1),
+                                    "sigma_px": rng.uniform(10.0, 50.0)},
+    "subsurface": lambda rng, n: {"delay_mm": (rng.uniform(4.0, 15.0),),
+                                  "sigma_px": (rng.uniform(0.8, 3.0),),
+                                  "fraction": (rng.uniform(0.2, 0.6),)},
+    "pixel_offset": lambda rng, n: {"offset_std_mm": rng.uniform(5.0, 10.0),
+                                    "gain_std": rng.uniform(0.01, 0.03)},
+    "temperature_drift": lambda rng, n: {"max_mm": _sign(rng) * rng.uniform(4.0, 12.0),
+                                         "tau_frames": rng.uniform(5.0, max(6.0, 1.5 * n))},
+    "time_offset": lambda rng, n: {"offset_ms": _sign(rng) * rng.uniform(15.0, 50.0)},
+    "hand_eye": lambda rng, n: dict(zip(
+        ("rx_mrad", "ry_mrad", "rz_mrad", "tx_mm", "ty_mm", "tz_mm"),
+        (*(_unit(rng) * rng.uniform(4.0, 10.0)), *(_unit(rng) * rng.uniform(2.0, 5.0))),
+        strict=True)),
+    "noise_model": lambda rng, n: {"scale": rng.uniform(1.6, 3.0),
+                                   "exponent": rng.uniform(0.8, 1.4),
+                                   "jitter_mm": rng.uniform(0.0, 2.0)},
+}
+
+
+def draw_effect(name: str, rng: np.random.Generator, n_frames: int) -> dict[str, Any]:
+    """Random parameters of effect ``name`` (floats, or 1-tuples for per-material ones)."""
+    params = DRAWS[name](rng, n_frames)
+    return {k: (tuple(float(x) for x in v) if isinstance(v, tuple) else float(v))
+            for k, v in params.items()}
+
+
+@dataclass
+class Case:
+    """One benchmark case.
+
+    Attributes:
+        frames: the "real" frames (range, amplitude, SL reference, nominal poses and stamps).
+        labels: hidden truth: ``{"effects": [{"name", "params"}], ...}``; never shown to the tool.
+    """
+
+    frames: list[ToFFrame]
+    labels: dict[str, Any]
+
+
+def _true_pose(sweep: Sweep, scene: Scene, t_s: float, effects: dict[str, dict]) -> np.ndarray:
+    """Where the camera really was when the frame stamped ``t_s`` was exposed (mm)."""
+    if "time_offset" in effects:
+        t_s = t_s + 1e-3 * effects["time_offset"]["offset_ms"]
+    pose = sweep.pose_mm(scene, t_s)
+    if "hand_eye" in effects:
+        p = effects["hand_eye"]
+        rot = rotation_matrix(1e-3 * np.array([p["rx_mrad"], p["ry_mrad"], p["rz_mrad"]]))
+        pose = pose @ make_pose(rot, np.array([p["tx_mm"], p["ty_mm"], p["tz_mm"]]))
+    return pose
+
+
+def real_config(effects: dict[str, dict]) -> ToFConfig:
+    """The real camera's config: nominal plus the concealed effects (pose errors excepted)."""
+    cfg = ToFConfig.nominal()
+    for name, params in effects.items():
+        if name not in ("time_offset", "hand_eye"):
+            cfg = cfg.with_effect(name, enabled=True, **params)
+    return cfg
+
+
+def generate_case(rng: np.random.Generator, effects: Sequence[str], *, n_frames: int = 8,
+                  intrinsics: Intrinsics = DEFAULT_INTRINSICS, supersample: int = 3,
+                  fusion: FusionConfig = BENCH_FUSION) -> Case:
+    """A "real" sweep carrying the concealed ``effects`` (empty = a control).
+
+    Args:
+        rng: source of all randomness (scene, sweep, parameters, noise).
+        effects: names from ``CONCEALABLE``.
+        n_frames: frames of the sweep, ``FRAME_PERIOD_S`` apart.
+        intrinsics: the ToF image grid.
+        supersample: samples per pixel and axis of the "real" render.
+        fusion: structured-light fusion of the reference.
+    """
+    drawn = {name: draw_effect(name, rng, n_frames) for name in effects}
+    scene = make_scene("test", rng)
+    sweep = draw_sweep(rng, n_frames)
+    cfg = real_config(drawn)
+    frames = []
+    for i in range(n_frames):
+        t_s = i * FRAME_PERIOD_S
+        nominal_pose = sweep.pose_mm(scene, t_s)
+        surface = render_surface(scene, _true_pose(sweep, scene, t_s, drawn),
+                                 intrinsics.scaled(supersample))
+        meas = render_tof(surface, cfg, rng, supersample=supersample, frame_index=i)
+        ref = reference_range(scene, nominal_pose, intrinsics, rng, fusion=fusion)
+        frames.append(ToFFrame(meas.range_mm, meas.amplitude, intrinsics,
+                               mod_freq_hz=cfg.mod_freq_hz, reference_mm=ref,
+                               stamp_ns=round(t_s * 1e9),
+                               pose=pose_mm_to_m(nominal_pose)))
+    labels = {"effects": [{"name": n, "params": drawn[n]} for n in effects],
+              "n_frames": n_frames, "scene_objects": len(scene.objects),
+              "sweep": {"start": sweep.start, "end": sweep.end, "wobble": sweep.wobble}}
+    return Case(frames, labels)

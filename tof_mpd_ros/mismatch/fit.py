@@ -1,0 +1,250 @@
+"""Fit one candidate effect's physical parameters to real frames and score it on held-out ones.
+
+Every candidate is an effect of the simulator's registry. Its free parameters are the ones its
+:class:`~tof_mpd_ros.sim.tof.ParamSpec` marks ``fit=True``, searched inside the spec's realistic
+range ``[low, high]`` (mapped to the unit box): a coarse design over the box, then a bounded
+Powell refinement from the best starts. The objective is the robust, noise-normalised
+likelihood of :mod:`.likelihood` on the training pixels, with the frames re-rendered by
+:class:`~.predict.FramePredictor` under ``ToFConfig.with_effect(name, enabled=True, ...)``.
+
+The score is measured on held-out pixels only: the mean improvement of that likelihood per
+pixel (millinats) minus a BIC-like cost per parameter, with a tile t-statistic for significance.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import optimize
+
+from ..sim.tof import EFFECTS, ToFConfig
+from .data import Split
+from .likelihood import REFERENCE_NOISE_MM, bic_penalty, nll, tile_t_statistic, total_sigma
+from .predict import FramePredictor, Prediction
+
+#: the candidate library of SPEC §5 (``none`` is the answer when none of them is significant)
+CANDIDATES: tuple[str, ...] = (
+    "multipath", "mixed_pixels", "wiggling", "amplitude_bias", "lens_scatter", "subsurface",
+    "phase_wrapping", "pixel_offset", "temperature_drift", "time_offset", "hand_eye",
+    "noise_model",
+)
+#: coarse-design size per number of free parameters (the rest of the budget goes to Powell)
+DESIGN_POINTS = {1: 9, 2: 25}
+DESIGN_POINTS_MANY = 16
+#: parameter values at which an effect does nothing: the fit always starts there too, so a
+#: fitted effect is never worse on the training pixels than leaving it out
+NEUTRAL: dict[str, dict[str, float]] = {
+    "lens_scatter": {"fraction": 0.0},
+    "subsurface": {"fraction": 0.0},
+    "temperature_drift": {"max_mm": 0.0},
+    "time_offset": {"offset_ms": 0.0},
+    "hand_eye": {"rx_mrad": 0.0, "ry_mrad": 0.0, "rz_mrad": 0.0, "tx_mm": 0.0, "ty_mm": 0.0,
+                 "tz_mm": 0.0},
+    "noise_model": {"scale": 1.0, "exponent": 1.0, "jitter_mm": 0.0},
+}
+
+
+@dataclass(frozen=True)
+class FreeParam:
+    """One fitted parameter: its effect's spec name and realistic range."""
+
+    name: str
+    low: float
+    high: float
+    per_material: bool
+
+    def value(self, u: float) -> float | tuple[float]:
+        x = self.low + float(np.clip(u, 0.0, 1.0)) * (self.high - self.low)
+        return (x,) if self.per_material else x
+
+    def unit(self, value: Any) -> float:
+        v = float(np.atleast_1d(value)[0])
+        return float(np.clip((v - self.low) / (self.high - self.low), 0.0, 1.0))
+
+
+def free_params(effect: str) -> list[FreeParam]:
+    """Fitted parameters of ``effect`` (per-material tuples are fitted as one shared value)."""
+    return [FreeParam(p.name, float(p.low), float(p.high), isinstance(p.default, tuple))
+            for p in EFFECTS[effect].params if p.fit and p.high > p.low]
+
+
+def with_params(base: ToFConfig, effect: str, u: Sequence[float]) -> ToFConfig:
+    """``base`` with ``effect`` enabled at unit-box point ``u``."""
+    params = {p.name: p.value(x) for p, x in zip(free_params(effect), u, strict=True)}
+    return base.with_effect(effect, enabled=True, **params)
+
+
+def plain_params(config: ToFConfig, effect: str) -> dict[str, Any]:
+    """JSON-friendly fitted parameters of ``effect`` in ``config``."""
+    out = {}
+    for p in free_params(effect):
+        v = config.params(effect)[p.name]
+        out[p.name] = float(np.atleast_1d(v)[0])
+    return out
+
+
+@dataclass
+class Problem:
+    """Frames, their predictors and the split: everything a fit and a score need.
+
+    Attributes:
+        real_mm: per frame, (H, W) float64 real range in mm, NaN = invalid.
+        predictors: per frame, the cached predictor (its ``base`` is the current model).
+        split: training / held-out pixels.
+        usable: per frame, (H, W) bool pixels with real range, reference and base prediction.
+        reference_noise_mm: std of the reference, mm.
+    """
+
+    real_mm: list[np.ndarray]
+    predictors: list[FramePredictor]
+    split: Split
+    usable: list[np.ndarray]
+    reference_noise_mm: float = REFERENCE_NOISE_MM
+    _base_cost: dict[int, np.ndarray] = field(default_factory=dict)
+
+    @property
+    def base(self) -> ToFConfig:
+        return self.predictors[0].base
+
+    def masks(self, which: str) -> list[np.ndarray]:
+        part = self.split.train if which == "train" else self.split.test
+        return [u & p for u, p in zip(self.usable, part, strict=True)]
+
+    def frames_of(self, which: str) -> list[int]:
+        return [i for i, m in enumerate(self.masks(which)) if m.any()]
+
+    def cost_map(self, i: int, config: ToFConfig | None) -> np.ndarray:
+        """(H, W) per-pixel cost of frame ``i`` under ``config`` (None = base); pixels the
+        candidate leaves unpredicted keep their base cost, so dropping pixels gains nothing."""
+        if i not in self._base_cost:
+            self._base_cost[i] = self._raw_cost(self.predictors[i].predict(), i)
+        if config is None:
+            return self._base_cost[i]
+        cost = self._raw_cost(self.predictors[i].predict(config), i)
+        return np.where(np.isfinite(cost), cost, self._base_cost[i])
+
+    def _raw_cost(self, pred: Prediction, i: int) -> np.ndarray:
+        sigma = total_sigma(pred.noise_mm, self.reference_noise_mm)
+        return nll(self.real_mm[i] - pred.range_mm, sigma)
+
+    def total_cost(self, config: ToFConfig | None, which: str) -> tuple[float, int]:
+        """(sum of the cost over the ``which`` pixels, number of pixels)."""
+        total, count = 0.0, 0
+        for i, m in zip(self.frames_of(which), [self.masks(which)[j]
+                                                 for j in self.frames_of(which)], strict=True):
+            total += float(self.cost_map(i, config)[m].sum())
+            count += int(m.sum())
+        return total, count
+
+
+@dataclass
+class FitResult:
+    """A fitted candidate and its held-out score.
+
+    Attributes:
+        effect: candidate name.
+        config: the current model with the candidate enabled at its fitted parameters.
+        parameters: fitted parameter values (JSON-friendly).
+        n_params: number of fitted parameters.
+        train_gain: mean training cost improvement, nats per pixel.
+        test_gain: mean held-out cost improvement, nats per pixel.
+        penalty: complexity cost, nats per pixel.
+        t_stat: tile t-statistic of the held-out improvement.
+        score: ``1000 · (test_gain − penalty)`` (millinats per held-out pixel).
+        note: why a candidate could not be fitted, if so.
+    """
+
+    effect: str
+    config: ToFConfig
+    parameters: dict[str, float]
+    n_params: int
+    train_gain: float = 0.0
+    test_gain: float = 0.0
+    penalty: float = 0.0
+    t_stat: float = 0.0
+    score: float = 0.0
+    note: str = ""
+
+
+def _design(k: int, rng: np.random.Generator) -> np.ndarray:
+    """Starting points of the coarse search in the unit box, (M, k)."""
+    if k == 1:
+        return np.linspace(0.0, 1.0, DESIGN_POINTS[1])[:, None]
+    if k == 2:
+        g = np.linspace(0.0, 1.0, 5)
+        return np.stack(np.meshgrid(g, g, indexing="ij"), axis=-1).reshape(-1, 2)
+    # stratified random design: each coordinate takes every stratum once
+    m = DESIGN_POINTS_MANY
+    cols = [(rng.permutation(m) + rng.uniform(size=m)) / m for _ in range(k)]
+    return np.stack(cols, axis=1)
+
+
+def fit_effect(problem: Problem, effect: str, *, max_evals: int = 150,
+               seed: int = 0) -> FitResult:
+    """Fit ``effect``'s free parameters on the training pixels, then score it held-out.
+
+    Args:
+        problem: the frames and the current model.
+        effect: a candidate name.
+        max_evals: budget of objective evaluations for the local refinement.
+        seed: seed of the coarse design (deterministic).
+    """
+    base = problem.base
+    params = free_params(effect)
+    k = len(params)
+    if effect == "time_offset" and all(p.motion is None for p in problem.predictors):
+        return FitResult(effect, base, {}, k, note="camera at rest in every frame")
+    if k == 0:
+        if base.enabled(effect):
+            return FitResult(effect, base, {}, 0, note="already modelled, no free parameter")
+        return score_fit(problem, FitResult(effect, base.with_effect(effect, enabled=True),
+                                            {}, 0))
+    base_train, n_train = problem.total_cost(None, "train")
+    if n_train == 0:
+        return FitResult(effect, base, {}, k, note="no training pixels")
+
+    def cost(u: np.ndarray) -> float:
+        return problem.total_cost(with_params(base, effect, u), "train")[0] / n_train
+
+    current = base.params(effect)
+    if not base.enabled(effect):
+        current.update(NEUTRAL.get(effect, {}))
+    u0 = np.array([p.unit(current[p.name]) for p in params])
+    design = np.vstack([u0[None, :], _design(k, np.random.default_rng(seed))])
+    costs = np.array([cost(u) for u in design])
+    order = np.argsort(costs)
+    best_u, best_c = design[order[0]], costs[order[0]]
+    # two local searches for small problems; one (with the whole budget) for large ones
+    starts = design[order[:2]] if k <= 2 else design[order[:1]]
+    for start in starts:
+        res = optimize.minimize(cost, start, method="Powell", bounds=[(0.0, 1.0)] * k,
+                                options={"xtol": 1e-3, "ftol": 1e-7,
+                                         "maxfev": max_evals // len(starts)})
+        if res.fun < best_c:
+            best_u, best_c = np.clip(res.x, 0.0, 1.0), float(res.fun)
+    config = with_params(base, effect, best_u)
+    result = FitResult(effect, config, plain_params(config, effect), k,
+                       train_gain=float(base_train / n_train - best_c))
+    return score_fit(problem, result)
+
+
+def score_fit(problem: Problem, result: FitResult) -> FitResult:
+    """Fill in the held-out gain, penalty, t-statistic and score of a fitted candidate."""
+    masks = problem.masks("test")
+    frames = problem.frames_of("test")
+    gains, used = [], []
+    for i in frames:
+        gains.append(problem.cost_map(i, None) - problem.cost_map(i, result.config))
+        used.append(masks[i])
+    n = int(sum(m.sum() for m in used))
+    if n == 0:
+        result.note = "no held-out pixels"
+        return result
+    result.test_gain = float(sum(g[m].sum() for g, m in zip(gains, used, strict=True)) / n)
+    result.penalty = float(bic_penalty(result.n_params, n))
+    result.t_stat = tile_t_statistic(gains, used)
+    result.score = 1000.0 * (result.test_gain - result.penalty)
+    return result

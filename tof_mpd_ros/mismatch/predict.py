@@ -1,0 +1,380 @@
+"""Predict the expected ToF measurement of a real frame from its reference, fast enough to fit.
+
+The prediction is the simulator's :func:`~tof_mpd_ros.sim.tof.render_from_reference` with the
+noise switched off (the expected value), run stage by stage through the same effect modules
+(:data:`~tof_mpd_ros.sim.tof.EFFECTS`) so that the fitter can re-render a frame thousands of
+times: the state before every effect is cached for the base configuration, and a candidate
+configuration resumes from the first effect in which it differs. The one-bounce indirect phasor
+(the expensive part) is computed once per frame at unit gain and scaled by the multipath gain;
+geometry effects (hand-eye, time offset) move the direct surface but keep that indirect phasor,
+which varies slowly with sub-pixel pose changes. Those moves use :func:`subpixel_move`, a
+continuous (bilinear) version of the simulator's warp: the simulator's nearest-pixel warp is
+piecewise constant in sub-pixel rotations, which a fitter cannot descend.
+
+The albedo the reference lacks is inferred from the real amplitude by inverting the direct
+return (``a = P ρ cosθ / r²``), so amplitude-dependent physics (noise, amplitude bias,
+interreflection strength) is evaluated at the real brightness.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy import ndimage
+
+from ..frame import ToFFrame
+from ..sim.surface import SurfaceImage
+from ..sim.tof import EFFECTS, CameraMotion, ToFConfig
+from ..sim.tof.context import RenderContext
+from ..sim.tof.effects.noise import phasor_noise_std
+from ..sim.tof.effects.phase_wrapping import PhaseWrapping
+from ..sim.tof.phasor import direct_phasor, phase_per_mm
+from ..sim.tof.reference import surface_from_reference
+from ..sim.tof.transport import indirect_phasor
+from ..sim.tof.warp import rotation_matrix
+
+#: pipeline of the reference render in order; ``None`` marks the direct-return step
+PIPELINE: tuple[str | None, ...] = (
+    "hand_eye", "time_offset", None, "mixed_pixels", "multipath", "subsurface", "lens_scatter",
+    "phase_wrapping", "wiggling", "amplitude_bias", "pixel_offset", "temperature_drift",
+)
+#: effects that only act on the noise, never on the expected value
+NOISE_EFFECTS = ("noise", "noise_model")
+#: albedo bounds of the inferred albedo (a black or mirror-like surface is not Lambertian)
+ALBEDO_RANGE = (0.02, 1.0)
+
+
+@dataclass
+class Prediction:
+    """Expected measurement of one frame.
+
+    Attributes:
+        range_mm: (H, W) float64 expected radial range in mm, NaN = predicted invalid.
+        amplitude: (H, W) float64 expected amplitude (simulator units), NaN = invalid.
+        noise_mm: (H, W) float64 predicted range noise std in mm (noise model at the expected
+            amplitude), NaN = invalid.
+    """
+
+    range_mm: np.ndarray
+    amplitude: np.ndarray
+    noise_mm: np.ndarray
+
+
+@dataclass
+class _State:
+    surface: SurfaceImage
+    z: np.ndarray | None = None
+    range_mm: np.ndarray | None = None
+    amplitude: np.ndarray | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def fill_holes(range_mm: np.ndarray, max_iterations: int = 64,
+               background_mm: float = 20.0) -> np.ndarray:
+    """Fill missing reference pixels from their background neighbours (for light transport).
+
+    Structured-light holes are mostly occlusion shadows beside objects, where the background
+    surface continues; a hole pixel takes the mean of its valid 8-neighbours that lie within
+    ``background_mm`` of the farthest of them, growing inwards until filled. The predictor
+    needs these pixels as senders of interreflected light (a hole sends none); they are never
+    scored.
+
+    Args:
+        range_mm: (H, W) float radial range in mm, NaN = missing.
+
+    Returns:
+        (H, W) float64 range with holes filled (NaN only if the image has no valid pixel).
+    """
+    out = np.asarray(range_mm, dtype=np.float64).copy()
+    h, w = out.shape
+    for _ in range(max_iterations):
+        hole = ~np.isfinite(out)
+        if not hole.any() or hole.all():
+            break
+        padded = np.pad(out, 1, constant_values=np.nan)
+        shifted = np.stack([padded[1 + dv:1 + dv + h, 1 + du:1 + du + w]
+                            for dv in (-1, 0, 1) for du in (-1, 0, 1)])
+        finite = np.isfinite(shifted)
+        far = np.max(np.where(finite, shifted, -np.inf), axis=0)
+        use = finite & (shifted >= far - background_mm)
+        count = use.sum(axis=0)
+        grow = hole & (count > 0)
+        total = np.where(use, shifted, 0.0).sum(axis=0)
+        out[grow] = total[grow] / count[grow]
+    return out
+
+
+def infer_albedo(frame: ToFFrame, config: ToFConfig, smooth_px: int = 3) -> np.ndarray:
+    """Albedo that makes the direct return of the reference geometry match the real amplitude.
+
+    Args:
+        frame: real frame with ``reference_mm``.
+        config: supplies ``light_power``.
+        smooth_px: median filter size (pixels) against noise and mixed edge pixels.
+
+    Returns:
+        (H, W) float64 albedo in ``ALBEDO_RANGE``; 0.5 where amplitude or reference is missing.
+    """
+    k = frame.intrinsics
+    unit = surface_from_reference(fill_holes(frame.reference_mm), k, 1.0)
+    a1 = np.abs(direct_phasor(unit.range_mm, unit.normal, unit.albedo, k.ray_directions(),
+                              frame.mod_freq_hz, config.light_power))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = np.where(a1 > 0, frame.amplitude / a1, np.nan)
+    rho = _nan_median(rho, smooth_px)
+    return np.clip(np.where(np.isfinite(rho), rho, 0.5), *ALBEDO_RANGE)
+
+
+def _nan_median(img: np.ndarray, size: int) -> np.ndarray:
+    """Median over the finite values of each ``size`` x ``size`` window (NaN if none)."""
+    if size <= 1:
+        return img
+    big = np.where(np.isfinite(img), img, np.inf)
+    small = np.where(np.isfinite(img), img, -np.inf)
+    # median of a window with NaNs ~ mean of the medians with NaNs pushed high and low
+    hi = ndimage.median_filter(big, size=size, mode="nearest")
+    lo = ndimage.median_filter(small, size=size, mode="nearest")
+    both = np.isfinite(hi) & np.isfinite(lo)
+    out = np.where(both, 0.5 * (np.where(both, hi, 0.0) + np.where(both, lo, 0.0)),
+                   np.where(np.isfinite(hi), hi, lo))
+    return np.where(np.isfinite(out), out, np.nan)
+
+
+def _sample(img: np.ndarray, coords: np.ndarray, order: int) -> np.ndarray:
+    """``img`` (H, W) at continuous (2, H, W) row/col ``coords`` (NaN outside / on holes)."""
+    return ndimage.map_coordinates(img, coords, order=order, mode="constant", cval=np.nan,
+                                   prefilter=False)
+
+
+def subpixel_move(surface: SurfaceImage, rotvec: np.ndarray, translation_mm: np.ndarray,
+                  iterations: int = 3, edge_mm: float = 10.0) -> SurfaceImage:
+    """The surface seen from a camera moved by a small (R, t), with sub-pixel accuracy.
+
+    Same convention as :func:`tof_mpd_ros.sim.tof.warp.move_camera` (new camera at ``t`` with
+    rotation ``R`` in the old frame, ``p' = Rᵀ (p − t)``), but the backward map and the points
+    are interpolated bilinearly; across depth edges (neighbour ranges more than ``edge_mm``
+    apart) the nearest sample is used so no point floats between fore- and background.
+
+    Args:
+        surface: pixel-resolution surface image.
+        rotvec: (3,) rotation vector in rad; translation_mm: (3,) in mm.
+
+    Returns:
+        SurfaceImage on the same grid (holes where no source reaches).
+    """
+    rot = rotation_matrix(np.asarray(rotvec, dtype=np.float64))
+    t = np.asarray(translation_mm, dtype=np.float64)
+    if not (np.any(rotvec) or np.any(t)):
+        return surface
+    k = surface.intrinsics
+    h, w = k.shape
+    moved = (surface.points_mm() - t) @ rot
+    uv = k.project(moved)
+    v0, u0 = np.mgrid[0:h, 0:w].astype(np.float64)
+    sv, su = v0.copy(), u0.copy()
+    for _ in range(iterations):
+        coords = np.stack([sv, su])
+        lu = _sample(np.nan_to_num(uv[..., 0], nan=-1e6), coords, 1)
+        lv = _sample(np.nan_to_num(uv[..., 1], nan=-1e6), coords, 1)
+        ok = np.isfinite(lu) & (np.abs(lu) < 1e5) & (np.abs(lv) < 1e5)
+        su += np.where(ok, u0 - lu, 0.0)
+        sv += np.where(ok, v0 - lv, 0.0)
+    coords = np.stack([sv, su])
+    rng = surface.range_mm
+    lo = ndimage.minimum_filter(np.nan_to_num(rng, nan=-1e9), size=2, origin=-1)
+    hi = ndimage.maximum_filter(np.nan_to_num(rng, nan=1e9), size=2, origin=-1)
+    smooth = _sample((hi - lo < edge_mm).astype(np.float64), np.floor(coords), 0) > 0.5
+    lin = np.stack([_sample(moved[..., q], coords, 1) for q in range(3)], axis=-1)
+    near = np.stack([_sample(moved[..., q], coords, 0) for q in range(3)], axis=-1)
+    pts = np.where(smooth[..., None] & np.isfinite(lin), lin, near)
+    idx = np.clip(np.rint(coords), 0, [[[h - 1]], [[w - 1]]]).astype(np.intp)
+    inside = (su > -0.5) & (su < w - 0.5) & (sv > -0.5) & (sv < h - 0.5)
+    ok = inside & np.all(np.isfinite(pts), axis=-1)
+    rays = k.ray_directions()
+    # keep the point on the pixel's own ray: its range is the projection on the ray
+    rng_new = np.where(ok, np.einsum("hwk,hwk->hw", pts, rays), np.nan)
+    normal = np.where(ok[..., None], surface.normal[idx[0], idx[1]] @ rot, np.nan)
+    hit = np.isfinite(rng_new) & np.all(np.isfinite(normal), axis=-1)
+    return SurfaceImage(range_mm=np.where(hit, rng_new, np.nan),
+                        normal=np.where(hit[..., None], normal, np.nan),
+                        albedo=np.where(hit, surface.albedo[idx[0], idx[1]], 0.0),
+                        object_id=np.where(hit, surface.object_id[idx[0], idx[1]], -1),
+                        material_id=np.where(hit, surface.material_id[idx[0], idx[1]], -1),
+                        intrinsics=k)
+
+
+def _geometry_move(name: str, params: Any, motion: CameraMotion | None
+                   ) -> tuple[np.ndarray, np.ndarray] | None:
+    """(rotvec rad, translation mm) of a geometry effect, or None when it does not move."""
+    if name == "hand_eye":
+        rot = 1e-3 * np.array([params["rx_mrad"], params["ry_mrad"], params["rz_mrad"]], float)
+        return rot, np.array([params["tx_mm"], params["ty_mm"], params["tz_mm"]], float)
+    if name == "time_offset":
+        if motion is None:
+            return None
+        dt = 1e-3 * float(params["offset_ms"])
+        return (np.asarray(motion.angular_rad_s, float) * dt,
+                np.asarray(motion.linear_mm_s, float) * dt)
+    return None
+
+
+def noise_std_mm(amplitude: np.ndarray, config: ToFConfig) -> np.ndarray:
+    """Range noise std (mm) the config's noise law predicts at expected amplitude ``amplitude``.
+
+    Args:
+        amplitude: (H, W) float expected amplitude (simulator units).
+        config: noise parameters (``noise``, and ``noise_model`` when enabled).
+
+    Returns:
+        (H, W) float64 std in mm (valid for a ≫ σ; capped at a quarter of the ambiguity range).
+    """
+    p = config.params("noise")
+    a = np.maximum(np.asarray(amplitude, dtype=np.float64), 1e-6)
+    jitter = 0.0
+    if config.enabled("noise_model"):
+        q = config.params("noise_model")
+        sigma = phasor_noise_std(a, p["read_std"], p["shot_gain"], p["ambient"],
+                                 scale=q["scale"], exponent=q["exponent"])
+        jitter = float(q["jitter_mm"])
+    elif config.enabled("noise"):
+        sigma = phasor_noise_std(a, p["read_std"], p["shot_gain"], p["ambient"])
+    else:
+        sigma = np.zeros_like(a)
+    k = phase_per_mm(config.mod_freq_hz)
+    std = np.hypot(sigma / (a * k), jitter)
+    return np.minimum(std, 0.25 * math.pi / k)
+
+
+class FramePredictor:
+    """Cached, staged expected-value render of one frame (see the module docstring).
+
+    Args:
+        frame: the real frame (``reference_mm`` required: it is the scene).
+        base: the configuration whose intermediate states are cached.
+        frame_index: index of the frame in its recording (temperature drift).
+        motion: camera velocity during the frame (time offset), or None.
+        albedo: (H, W) albedo, or None to infer it from the real amplitude.
+        indirect_cache: shared cache of indirect phasors (see :meth:`rebased`).
+    """
+
+    def __init__(self, frame: ToFFrame, base: ToFConfig, *, frame_index: int = 0,
+                 motion: CameraMotion | None = None, albedo: np.ndarray | None = None,
+                 indirect_cache: dict[tuple, np.ndarray] | None = None) -> None:
+        self.frame = frame
+        self.frame_index = int(frame_index)
+        self.motion = motion
+        self.albedo = infer_albedo(frame, base) if albedo is None else albedo
+        # holes are filled for light transport and mixing, and masked again at the end
+        self.reference_valid = np.isfinite(frame.reference_mm)
+        self.surface = surface_from_reference(fill_holes(frame.reference_mm), frame.intrinsics,
+                                              self.albedo)
+        self._indirect = {} if indirect_cache is None else indirect_cache
+        self.base = base
+        self._checkpoints: dict[int, _State] = {}
+        self._base_result = self._run(base, 0, _State(self.surface), record=True)
+
+    # -- public -------------------------------------------------------------------------------
+
+    def predict(self, config: ToFConfig | None = None) -> Prediction:
+        """Expected measurement under ``config`` (None = the base configuration)."""
+        if config is None or config == self.base:
+            return self._base_result
+        start = self._first_difference(config)
+        if start is None:
+            rng_mm, amp = self._base_result.range_mm, self._base_result.amplitude
+            return Prediction(rng_mm, amp, self._noise(amp, config))
+        state = self._checkpoints[start]
+        copy = _State(state.surface, state.z, state.range_mm, state.amplitude)
+        return self._run(config, start, copy, record=False)
+
+    def rebased(self, base: ToFConfig) -> FramePredictor:
+        """The same frame predicted around another base configuration (albedo and the indirect
+        phasor are reused)."""
+        return FramePredictor(self.frame, base, frame_index=self.frame_index, motion=self.motion,
+                              albedo=self.albedo, indirect_cache=self._indirect)
+
+    def indirect(self, config: ToFConfig) -> np.ndarray:
+        """(H, W) complex128 unit-gain one-bounce indirect phasor of the reference surface."""
+        p = config.params("multipath")
+        key = (p["block_px"], p["step_px"], p["max_steps"], config.mod_freq_hz,
+               config.light_power)
+        if key not in self._indirect:
+            self._indirect[key] = indirect_phasor(
+                self.surface, mod_freq_hz=config.mod_freq_hz, light_power=config.light_power,
+                block_px=int(p["block_px"]), step_px=float(p["step_px"]),
+                max_steps=int(p["max_steps"]))
+        return self._indirect[key]
+
+    # -- internals ----------------------------------------------------------------------------
+
+    def _first_difference(self, config: ToFConfig) -> int | None:
+        """Pipeline position of the first effect whose switch or parameters differ from base."""
+        if (config.mod_freq_hz, config.light_power) != (self.base.mod_freq_hz,
+                                                         self.base.light_power):
+            return 0
+        for i, name in enumerate(PIPELINE):
+            if name is not None and config.effects[name] != self.base.effects[name]:
+                return i
+        return None
+
+    def _context(self, config: ToFConfig, surface: SurfaceImage) -> RenderContext:
+        return RenderContext(intrinsics=self.frame.intrinsics, surface=surface, samples=surface,
+                             supersample=1, mod_freq_hz=config.mod_freq_hz,
+                             light_power=config.light_power, rng=np.random.default_rng(0),
+                             frame_index=self.frame_index, motion=self.motion,
+                             true_range_mm=surface.range_mm,
+                             noise_params=config.params("noise"))
+
+    def _run(self, config: ToFConfig, start: int, state: _State, *, record: bool) -> Prediction:
+        effects = config.effects
+        ctx = self._context(config, state.surface)
+        ctx.amplitude = state.amplitude
+        for i in range(start, len(PIPELINE)):
+            if record:
+                self._checkpoints[i] = _State(state.surface, state.z, state.range_mm,
+                                              state.amplitude)
+            name = PIPELINE[i]
+            self._step(name, config, state, ctx, effects)
+        valid = (state.surface.valid & np.isfinite(state.range_mm) & self.reference_valid
+                 & (state.amplitude >= config.min_amplitude))
+        rng_mm = np.where(valid, state.range_mm, np.nan)
+        amp = np.where(valid, state.amplitude, np.nan)
+        return Prediction(rng_mm, amp, self._noise(amp, config))
+
+    def _step(self, name: str | None, config: ToFConfig, state: _State, ctx: RenderContext,
+              effects: Any) -> None:
+        """Apply one pipeline step to ``state`` (mirrors ``sim.tof.render._render``, s = 1)."""
+        if name is None:  # direct return of the (possibly moved) surface
+            s = state.surface
+            state.z = direct_phasor(s.range_mm, s.normal, s.albedo,
+                                    s.intrinsics.ray_directions(), config.mod_freq_hz,
+                                    config.light_power)
+            return
+        cfg = effects[name]
+        stage = EFFECTS[name].stage
+        if stage == "geometry":
+            move = _geometry_move(name, cfg.params, self.motion) if cfg.enabled else None
+            if move is not None:
+                state.surface = subpixel_move(state.surface, *move)
+                ctx.surface = ctx.samples = state.surface
+                ctx.true_range_mm = state.surface.range_mm
+        elif name == "multipath":
+            if cfg.enabled:
+                state.z = state.z + float(cfg.params["gain"]) * self.indirect(config)
+        elif stage in ("footprint", "phasor"):
+            if cfg.enabled:
+                state.z = EFFECTS[name].apply(state.z, cfg.params, ctx)
+        elif stage == "readout":
+            state.amplitude = np.abs(state.z)
+            ctx.amplitude = state.amplitude
+            state.range_mm = (EFFECTS[name].apply(state.z, cfg.params, ctx) if cfg.enabled
+                              else PhaseWrapping.unwrapped(state.z, ctx))
+        elif cfg.enabled:  # range stage
+            state.range_mm = EFFECTS[name].apply(state.range_mm, cfg.params, ctx)
+
+    @staticmethod
+    def _noise(amplitude: np.ndarray, config: ToFConfig) -> np.ndarray:
+        return np.where(np.isfinite(amplitude), noise_std_mm(amplitude, config), np.nan)

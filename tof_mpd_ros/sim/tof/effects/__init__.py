@@ -1,0 +1,1 @@
+"""The named physical effects of the ToF simulator, one module each (see ``..registry``)."""

@@ -1,0 +1,209 @@
+"""Training samples: calibrated frames, per-pixel targets and labels, patches gathered on demand.
+
+Memory stays bounded at MD scale (540 frames of 180 x 140, ~10 M usable pixels, the paper's
+"10 million patches"): the 280-wide encodings (~11 GB for 10 M) are never stored. What is kept is
+the NaN-padded calibrated range and log-amplitude planes of every frame (~0.2 GB) and int64 pixel
+indices; a batch's patches are gathered by indexing an unfolded view and encoded by the same
+:func:`~tof_mpd_ros.correction.encoding.encode_patches` the whole-frame path uses, so training and
+inference see bit-identical features.
+
+Per usable pixel (valid ToF measurement after calibration *and* a reference, i.e. not missing):
+
+* F target ``t = clip(R* - R, -T, T)`` in mm (T = 15 mm; R is the *calibrated* range);
+* G label: the orientation group 0..3 of :func:`edges.ground_truth_edges` on the reference, or -1
+  for non-edge pixels. Head k's positives are group k; everything else is its negative.
+
+Pixel sampling (:func:`sample_pixels`): per frame, uniformly without replacement among usable
+pixels, at most ``max_per_frame`` (None = all of them, the paper's setting), drawn from a seeded
+``torch.Generator``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as tnf
+
+from ..correction.calibration import IntrinsicCalibration
+from ..correction.encoding import EncodingConfig, encode_patches, prepare_planes
+from ..errors import InputError
+from ..frame import ToFFrame
+
+
+@dataclass
+class TrainingData:
+    """Frames prepared for patch sampling (all tensors on CPU).
+
+    Attributes:
+        range_planes: (N, H + P - 1, W + P - 1) float32 calibrated range in mm, NaN-padded,
+            NaN where invalid.
+        log_amp_planes: same shape, natural-log amplitude.
+        amplitude: (N, H, W) float32 amplitude (for b_A).
+        target: (N, H, W) float32 truncated correction t = clip(R* - R, -T, T) in mm, NaN where
+            the pixel is not usable.
+        group: (N, H, W) int8 ground-truth edge orientation group 0..3, -1 = non-edge.
+        usable: (N, H, W) bool, valid measurement and reference present.
+        calibrated: (N, H, W) float32 calibrated range R in mm (NaN = invalid).
+        reference: (N, H, W) float32 reference range R* in mm (NaN = missing).
+        encoding: the encoding constants.
+        digest: SHA-256 of the raw frames and the calibration (provenance, checkpoint check).
+    """
+
+    range_planes: torch.Tensor
+    log_amp_planes: torch.Tensor
+    amplitude: torch.Tensor
+    target: torch.Tensor
+    group: torch.Tensor
+    usable: torch.Tensor
+    calibrated: torch.Tensor
+    reference: torch.Tensor
+    encoding: EncodingConfig
+    digest: str
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.usable.shape[0])
+
+    @property
+    def frame_shape(self) -> tuple[int, int]:
+        return int(self.usable.shape[1]), int(self.usable.shape[2])
+
+    def gather(self, flat_index: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Encode the pixels ``flat_index`` (into the (N, H, W) grid).
+
+        Args:
+            flat_index: (M,) int64 flat pixel indices.
+
+        Returns:
+            ``(features, target, group)``: (M, 280) float32, (M,) float32 mm, (M,) int64.
+        """
+        p = self.encoding.patch_size
+        h, w = self.frame_shape
+        n, rest = flat_index // (h * w), flat_index % (h * w)
+        y, x = rest // w, rest % w
+        # Pixel (y, x) sits at (y + p//2, x + p//2) in the padded plane, so window (y, x) of the
+        # unfolded view is its patch; advanced indexing copies just those M windows.
+        windows_r = self.range_planes.unfold(1, p, 1).unfold(2, p, 1)     # (N, H, W, P, P)
+        windows_la = self.log_amp_planes.unfold(1, p, 1).unfold(2, p, 1)
+        feats = encode_patches(windows_r[n, y, x], windows_la[n, y, x],
+                               self.amplitude.reshape(-1)[flat_index], self.encoding)
+        return (feats, self.target.reshape(-1)[flat_index],
+                self.group.reshape(-1)[flat_index].long())
+
+
+def frames_digest(frames: Sequence[ToFFrame], calibration: IntrinsicCalibration) -> str:
+    """SHA-256 over every frame's range, amplitude and reference and the calibration."""
+    h = hashlib.sha256()
+    for f in frames:
+        for a in (f.range_mm, f.amplitude, f.reference_mm):
+            h.update(np.ascontiguousarray(a, np.float32).tobytes())
+    for name, a in sorted(calibration.to_arrays().items()):
+        h.update(name.encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
+def check_training_frames(frames: Sequence[ToFFrame], shape: tuple[int, int]) -> None:
+    """Raise :class:`InputError` unless every frame has a reference and the given (H, W)."""
+    if len(frames) == 0:
+        raise InputError("training needs at least one frame, got none")
+    for i, f in enumerate(frames):
+        if f.reference_mm is None:
+            raise InputError(f"frame {i} has no reference_mm; training frames need the "
+                             "structured-light reference")
+        if f.range_mm.shape != tuple(shape):
+            raise InputError(f"frame {i} is {f.range_mm.shape} (H, W) but the calibration is "
+                             f"{tuple(shape)}; crop the frames to the calibration's crop")
+
+
+def prepare_training_data(frames: Sequence[ToFFrame], calibration: IntrinsicCalibration,
+                          encoding: EncodingConfig, *, target_clip_mm: float = 15.0
+                          ) -> TrainingData:
+    """Calibrate the frames, compute targets and ground-truth edge labels.
+
+    Args:
+        frames: ToF frames with ``reference_mm`` (NaN = missing), all of the calibration's (H, W).
+        calibration: applied to every frame first (as at inference).
+        encoding: patch encoding constants.
+        target_clip_mm: T, the truncation of the F target.
+
+    Returns:
+        The prepared :class:`TrainingData`.
+
+    Raises:
+        InputError: no frames, a frame without reference, or a frame of another size.
+    """
+    from ..correction import edges  # OpenCV-based; imported where it is needed
+
+    check_training_frames(frames, calibration.shape)
+    rng_ = np.stack([f.range_mm for f in frames])
+    amp = np.stack([f.amplitude for f in frames]).astype(np.float32)
+    ref = np.stack([f.reference_mm for f in frames]).astype(np.float32)
+    calibrated = calibration.apply(rng_, amp)
+    r_t, la_t, valid = prepare_planes(torch.from_numpy(calibrated), torch.from_numpy(amp))
+    usable = valid & torch.from_numpy(np.isfinite(ref))
+    with np.errstate(invalid="ignore"):
+        t = np.clip(ref - calibrated, -target_clip_mm, target_clip_mm)
+    target = torch.where(usable, torch.from_numpy(t.astype(np.float32)), float("nan"))
+    group = torch.from_numpy(np.stack([edges.ground_truth_edges(r)[1] for r in ref]))
+    group = torch.where(usable, group.to(torch.int8), torch.tensor(-1, dtype=torch.int8))
+    half = encoding.patch_size // 2
+    pad = (half, half, half, half)
+    return TrainingData(
+        range_planes=tnf.pad(r_t[:, None], pad, value=float("nan"))[:, 0].contiguous(),
+        log_amp_planes=tnf.pad(la_t[:, None], pad, value=float("nan"))[:, 0].contiguous(),
+        amplitude=torch.from_numpy(amp), target=target, group=group, usable=usable,
+        calibrated=torch.from_numpy(calibrated), reference=torch.from_numpy(ref),
+        encoding=encoding, digest=frames_digest(frames, calibration))
+
+
+def sample_pixels(data: TrainingData, frame_ids: Sequence[int], max_per_frame: int | None,
+                  generator: torch.Generator) -> torch.Tensor:
+    """Usable pixels of the given frames, at most ``max_per_frame`` each, shuffled.
+
+    Args:
+        data: prepared frames.
+        frame_ids: which frames to draw from.
+        max_per_frame: cap per frame (uniform without replacement), None = all usable pixels.
+        generator: the source of randomness (same generator state -> same samples).
+
+    Returns:
+        (M,) int64 flat indices into (N, H, W), in random order.
+    """
+    h, w = data.frame_shape
+    chosen = []
+    for i in frame_ids:
+        idx = torch.nonzero(data.usable[i].reshape(-1)).reshape(-1)
+        if max_per_frame is not None and idx.numel() > max_per_frame:
+            idx = idx[torch.randperm(idx.numel(), generator=generator)[:max_per_frame]]
+        chosen.append(idx + int(i) * h * w)
+    if not chosen:
+        return torch.zeros(0, dtype=torch.int64)
+    flat = torch.cat(chosen)
+    return flat[torch.randperm(flat.numel(), generator=generator)]
+
+
+def auto_encoding(data_frames: Sequence[ToFFrame], calibration: IntrinsicCalibration,
+                  base: EncodingConfig, *, quantile: float = 0.005) -> EncodingConfig:
+    """``base`` with the b_R / b_A intervals set to the [q, 1 - q] quantiles of the data.
+
+    Makes the one-hot bins span the ranges and amplitudes actually seen (amplitude has no
+    universal unit), so no bin is wasted on values that never occur.
+    """
+    from dataclasses import replace
+
+    amp = np.stack([f.amplitude for f in data_frames])
+    cal = calibration.apply(np.stack([f.range_mm for f in data_frames]), amp)
+    ok = np.isfinite(cal) & (cal > 0)
+    if not ok.any():
+        raise InputError("no valid pixel in the training frames")
+    r_lo, r_hi = np.quantile(cal[ok], [quantile, 1 - quantile])
+    a_lo, a_hi = np.quantile(amp[ok], [quantile, 1 - quantile])
+    # Guard against constant data, which would give an empty interval.
+    return replace(base, range_min_mm=float(r_lo), range_max_mm=float(max(r_hi, r_lo + 1.0)),
+                   amplitude_min=float(a_lo),
+                   amplitude_max=float(max(a_hi, a_lo + 1e-6 * max(abs(a_lo), 1.0))))

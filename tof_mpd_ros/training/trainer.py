@@ -1,0 +1,395 @@
+"""Offline training of F and G (paper §III, §V): SGD with momentum, batch 500, 40 epochs.
+
+``train(frames, calibration, config, seed=...)`` prepares the frames (calibration, targets,
+ground-truth edges, see :mod:`.samples`), splits them *by frame* into training and validation
+sets, and trains both networks on the same stream of patches:
+
+* F minimises the squared error between its normalised output and ``t / T`` (the paper's
+  Euclidean loss on the target truncated to +-T = 15 mm);
+* each G head k minimises the cross entropy of "group k" vs "anything else". Edge pixels are
+  rare (a few percent, spread over four groups), so by default (``boundary_balance="balanced"``)
+  each head weights its positives by ``0.5 / pi_k`` and its negatives by ``0.5 / (1 - pi_k)``
+  (pi_k = fraction of group-k pixels in the training set): both classes carry half of the
+  expected loss, as if sampled 50/50, without duplicating patches; the positive weight is capped
+  at ``max_positive_weight`` to keep SGD steps bounded.
+
+Both losses are summed and back-propagated once per batch (their parameters are disjoint, so
+this equals two separate optimisers, with one autograd pass). Every epoch draws its pixels and
+their order from a generator seeded by ``(seed, epoch)``, which makes runs deterministic and a
+resumed run identical to an uninterrupted one: the checkpoint (``checkpoint.pt``, tensors and
+plain data only, loaded with ``weights_only=True``) holds the networks, the momentum buffers,
+the history and a fingerprint of the run it belongs to.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import time
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as tnf
+
+from ..correction.calibration import IntrinsicCalibration
+from ..correction.encoding import EncodingConfig
+from ..correction.networks import N_ORIENTATIONS
+from ..correction.pipeline import CorrectionModel, GeodesicParams
+from ..correction.weights import save_weights
+from ..errors import CalibrationError, InputError, WeightsError
+from ..frame import ToFFrame
+from .samples import TrainingData, auto_encoding, prepare_training_data, sample_pixels
+
+log = logging.getLogger(__name__)
+
+CHECKPOINT_NAME = "checkpoint.pt"
+BALANCE_MODES = ("balanced", "none")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Training hyper-parameters (paper: SGD, momentum 0.9, batch 500, 40 epochs).
+
+    Attributes:
+        epochs: passes over the sampled training pixels.
+        batch_size: patches per SGD step.
+        lr_range, lr_boundary: learning rates of F and of the G heads.
+        momentum: SGD momentum.
+        weight_decay: L2 penalty of both networks.
+        target_clip_mm: T, truncation of the F target (paper: 15 mm).
+        max_samples_per_frame: pixels drawn per training frame and epoch (None = every usable
+            pixel, the paper's ~18.5 k per frame); a new draw each epoch.
+        val_fraction: fraction of frames held out for validation (at least one when there are
+            two or more frames; 0 disables validation).
+        val_samples_per_frame: pixels per validation frame (fixed draw), None = all.
+        boundary_balance: ``"balanced"`` or ``"none"`` (see the module docstring).
+        max_positive_weight: cap of the G positive-class weight.
+        auto_bins: set b_R / b_A intervals from the training data's quantiles.
+        chunk_batches: batches encoded at once (amortises the gather; memory ~ chunk * batch *
+            1.1 kB).
+        prefetch: gather the next chunk on a worker thread while the current one trains.
+        num_threads: torch intra-op threads while training (restored afterwards); None = leave
+            as is. Batch-500 GEMMs gain little from more threads, so 1 thread for SGD plus the
+            prefetch thread is the best use of a 2-core machine.
+    """
+
+    epochs: int = 40
+    batch_size: int = 500
+    lr_range: float = 0.05
+    lr_boundary: float = 0.05
+    momentum: float = 0.9
+    weight_decay: float = 0.0
+    target_clip_mm: float = 15.0
+    max_samples_per_frame: int | None = None
+    val_fraction: float = 0.1
+    val_samples_per_frame: int | None = 4000
+    boundary_balance: str = "balanced"
+    max_positive_weight: float = 50.0
+    auto_bins: bool = True
+    chunk_batches: int = 40
+    prefetch: bool = True
+    num_threads: int | None = 1
+
+    def __post_init__(self) -> None:
+        if self.epochs < 1 or self.batch_size < 1 or self.chunk_batches < 1:
+            raise InputError(f"epochs, batch_size and chunk_batches must be >= 1: {self}")
+        if not (self.lr_range > 0 and self.lr_boundary > 0 and 0 <= self.momentum < 1):
+            raise InputError(f"need lr > 0 and 0 <= momentum < 1: {self}")
+        if not 0 <= self.val_fraction < 1:
+            raise InputError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
+        if self.boundary_balance not in BALANCE_MODES:
+            raise InputError(f"boundary_balance must be one of {BALANCE_MODES}, "
+                             f"got {self.boundary_balance!r}")
+
+
+def fit_calibration(frames: Sequence[ToFFrame], **kwargs: Any) -> IntrinsicCalibration:
+    """Fit the per-pixel intrinsic calibration from checkerboard captures.
+
+    Args:
+        frames: ToF frames of the checkerboard with ``reference_mm`` = true radial range of the
+            board plane (NaN = missing), all of one (H, W).
+        **kwargs: passed to :meth:`IntrinsicCalibration.fit` (``amplitude_term``, ``ridge``,
+            ``min_samples``, ``max_unfitted_fraction``).
+
+    Raises:
+        CalibrationError: no frames, a frame without reference, mixed sizes or too few samples.
+    """
+    if len(frames) == 0:
+        raise CalibrationError("fit_calibration needs checkerboard frames, got none")
+    shape = frames[0].range_mm.shape
+    for i, f in enumerate(frames):
+        if f.reference_mm is None:
+            raise CalibrationError(f"checkerboard frame {i} has no reference_mm")
+        if f.range_mm.shape != shape:
+            raise CalibrationError(f"checkerboard frame {i} is {f.range_mm.shape}, frame 0 is "
+                                   f"{shape}")
+    return IntrinsicCalibration.fit(np.stack([f.range_mm for f in frames]),
+                                    np.stack([f.amplitude for f in frames]),
+                                    np.stack([f.reference_mm for f in frames]), **kwargs)
+
+
+def split_frames(n: int, val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
+    """Seeded split of frame indices into (train, validation); validation is never empty when
+    ``val_fraction > 0`` and ``n >= 2``."""
+    if n == 0:
+        return [], []
+    order = np.random.default_rng(seed).permutation(n).tolist()
+    n_val = 0 if val_fraction == 0 or n < 2 else max(1, round(n * val_fraction))
+    return sorted(order[n_val:]), sorted(order[:n_val])
+
+
+class _Nets(torch.nn.Module):
+    """F and G side by side, so one backward pass and one optimiser serve both."""
+
+    def __init__(self, model: CorrectionModel) -> None:
+        super().__init__()
+        self.range_net = model.range_net
+        self.boundary_nets = model.boundary_nets
+
+
+def _class_weights(data: TrainingData, flat: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
+    """(2, 4) loss weights indexed by [label, head] (see the module docstring)."""
+    weights = torch.ones(2, N_ORIENTATIONS)
+    if cfg.boundary_balance == "none" or flat.numel() == 0:
+        return weights
+    groups = data.group.reshape(-1)[flat].long()
+    for k in range(N_ORIENTATIONS):
+        pi = float((groups == k).float().mean())
+        if 0 < pi < 1:
+            weights[1, k] = min(0.5 / pi, cfg.max_positive_weight)
+            weights[0, k] = 0.5 / (1 - pi)
+    return weights
+
+
+def _losses(nets: _Nets, feats: torch.Tensor, target: torch.Tensor, group: torch.Tensor,
+            weights: torch.Tensor, clip: float) -> tuple[torch.Tensor, torch.Tensor]:
+    """(F loss, G loss) of one batch: MSE on t / T, weighted cross entropy averaged over heads."""
+    loss_f = tnf.mse_loss(nets.range_net.normalised(feats), target / clip)
+    logits = nets.boundary_nets(feats)                                   # (B, 4, 2)
+    labels = (group[:, None] == torch.arange(N_ORIENTATIONS)).long()     # (B, 4)
+    ce = tnf.cross_entropy(logits.reshape(-1, 2), labels.reshape(-1), reduction="none")
+    w = weights[labels, torch.arange(N_ORIENTATIONS)]
+    return loss_f, (ce * w.reshape(-1)).mean()
+
+
+def _chunks(data: TrainingData, flat: torch.Tensor, size: int, prefetch: bool
+            ) -> Iterator[tuple[torch.Tensor, torch.Tensor, torch.Tensor]]:
+    """Encoded chunks of ``flat`` in order; with ``prefetch`` the next chunk is gathered on a
+    worker thread while the current one trains (torch ops release the GIL), which hides the
+    gather on a 2-core machine. The result is identical either way."""
+    starts = range(0, flat.numel(), size)
+    if not prefetch:
+        for c0 in starts:
+            yield data.gather(flat[c0:c0 + size])
+        return
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        pending = None
+        for c0 in starts:
+            nxt = pool.submit(data.gather, flat[c0:c0 + size])
+            if pending is not None:
+                yield pending.result()
+            pending = nxt
+        if pending is not None:
+            yield pending.result()
+
+
+def _epoch_generator(seed: int, epoch: int) -> torch.Generator:
+    return torch.Generator().manual_seed(seed * 1_000_003 + epoch)
+
+
+def _run_epoch(nets: _Nets, opt: torch.optim.Optimizer, data: TrainingData, train_ids: list[int],
+               weights: torch.Tensor, cfg: TrainConfig, seed: int, epoch: int, bar: Any
+               ) -> dict[str, float]:
+    flat = sample_pixels(data, train_ids, cfg.max_samples_per_frame,
+                         _epoch_generator(seed, epoch))
+    nets.train()
+    sum_f = sum_g = 0.0
+    n_seen = 0
+    t0 = time.perf_counter()
+    chunk = cfg.batch_size * cfg.chunk_batches
+    for feats, target, group in _chunks(data, flat, chunk, cfg.prefetch):
+        for b0 in range(0, feats.shape[0], cfg.batch_size):
+            sl = slice(b0, b0 + cfg.batch_size)
+            loss_f, loss_g = _losses(nets, feats[sl], target[sl], group[sl], weights,
+                                     cfg.target_clip_mm)
+            opt.zero_grad(set_to_none=True)
+            (loss_f + loss_g).backward()
+            opt.step()
+            n = feats[sl].shape[0]
+            sum_f += loss_f.item() * n
+            sum_g += loss_g.item() * n
+            n_seen += n
+        bar.update(feats.shape[0])
+        bar.set_postfix(epoch=epoch + 1, loss_f=f"{sum_f / max(n_seen, 1):.4f}",
+                        loss_g=f"{sum_g / max(n_seen, 1):.4f}", refresh=False)
+    seconds = time.perf_counter() - t0
+    return {"epoch": epoch + 1, "loss_range": sum_f / max(n_seen, 1),
+            "loss_boundary": sum_g / max(n_seen, 1), "patches": n_seen, "seconds": seconds,
+            "patches_per_s": n_seen / seconds if seconds > 0 else math.nan}
+
+
+@torch.no_grad()
+def evaluate_samples(nets: _Nets, data: TrainingData, flat: torch.Tensor, weights: torch.Tensor,
+                     cfg: TrainConfig) -> dict[str, float]:
+    """Validation metrics on the pixels ``flat``: range errors before/after F (untruncated
+    reference, mm), the fraction within 5 mm (the paper's metric), G loss and edge recall."""
+    if flat.numel() == 0:
+        return {}
+    nets.eval()
+    err_before, err_after, loss_g, hits, positives = [], [], 0.0, 0, 0
+    for c0 in range(0, flat.numel(), 20_000):
+        idx = flat[c0:c0 + 20_000]
+        feats, target, group = data.gather(idx)
+        r = data.calibrated.reshape(-1)[idx]
+        ref = data.reference.reshape(-1)[idx]
+        err_before.append(r - ref)
+        err_after.append(r + nets.range_net(feats) - ref)
+        _, lg = _losses(nets, feats, target, group, weights, cfg.target_clip_mm)
+        loss_g += float(lg) * idx.numel()
+        probs = nets.boundary_nets.probabilities(feats)
+        on_edge = group >= 0
+        positives += int(on_edge.sum())
+        hits += int((probs[on_edge, group[on_edge]] > 0.5).sum())
+    before, after = torch.cat(err_before), torch.cat(err_after)
+    return {"val_rmse_before_mm": float(before.square().mean().sqrt()),
+            "val_rmse_mm": float(after.square().mean().sqrt()),
+            "val_within_5mm_before": float((before.abs() < 5).float().mean()),
+            "val_within_5mm": float((after.abs() < 5).float().mean()),
+            "val_loss_boundary": loss_g / flat.numel(),
+            "val_edge_recall": hits / positives if positives else math.nan}
+
+
+def _fingerprint(cfg: TrainConfig, seed: int, data: TrainingData) -> str:
+    """What a checkpoint must match to be resumed. ``epochs`` is left out on purpose: nothing
+    depends on it (no schedule), so a finished run can be extended by asking for more epochs;
+    ``chunk_batches``, ``prefetch`` and ``num_threads`` change speed, not the maths."""
+    settings = {k: v for k, v in asdict(cfg).items()
+                if k not in ("epochs", "chunk_batches", "prefetch", "num_threads")}
+    return json.dumps({"config": settings, "seed": seed, "data": data.digest,
+                       "encoding": data.encoding.as_dict()}, sort_keys=True)
+
+
+def _save_checkpoint(path: Path, nets: _Nets, opt: torch.optim.Optimizer, epoch: int,
+                     history: list[dict[str, float]], fingerprint: str) -> None:
+    state = {"epoch": epoch, "nets": nets.state_dict(), "optimizer": opt.state_dict(),
+             "history": history, "fingerprint": fingerprint}
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(state, tmp)
+    os.replace(tmp, path)
+
+
+def _load_checkpoint(path: Path, nets: _Nets, opt: torch.optim.Optimizer, fingerprint: str
+                     ) -> tuple[int, list[dict[str, float]]]:
+    """Restore a checkpoint; returns (epochs done, history)."""
+    try:
+        state = torch.load(path, weights_only=True)
+        if state["fingerprint"] != fingerprint:
+            raise WeightsError(f"checkpoint {path} belongs to another run (different data, "
+                               "config or seed); remove it or use another checkpoint_dir")
+        nets.load_state_dict(state["nets"])
+        opt.load_state_dict(state["optimizer"])
+        return int(state["epoch"]), list(state["history"])
+    except WeightsError:
+        raise
+    except Exception as err:  # unpickling/zip/key errors: any unreadable checkpoint
+        raise WeightsError(f"checkpoint {path} is unreadable (corrupt or truncated?): "
+                           f"{type(err).__name__}: {err}") from err
+
+
+def train(
+    frames: Sequence[ToFFrame],
+    calibration: IntrinsicCalibration,
+    config: TrainConfig | None = None,
+    *,
+    seed: int = 0,
+    encoding: EncodingConfig | None = None,
+    geodesic: GeodesicParams | None = None,
+    checkpoint_dir: str | os.PathLike[str] | None = None,
+    weights_path: str | os.PathLike[str] | None = None,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> tuple[CorrectionModel, list[dict[str, float]]]:
+    """Train F and G on frames with references.
+
+    Args:
+        frames: ToF frames (H, W as the calibration) with ``reference_mm`` (NaN = missing,
+            excluded).
+        calibration: intrinsic calibration, applied to every frame first.
+        config: hyper-parameters (default: the paper's).
+        seed: seeds the network initialisation, the validation split and every epoch's sampling.
+        encoding: encoding constants (default :class:`EncodingConfig`; bins set from the data
+            when ``config.auto_bins``).
+        geodesic: geodesic constants stored in the model.
+        checkpoint_dir: write ``checkpoint.pt`` here after every epoch and resume from it.
+        weights_path: also write the final model there (see :func:`save_weights`).
+        overwrite: allow replacing an existing ``weights_path``.
+        progress: show a tqdm bar with the running losses.
+
+    Returns:
+        ``(model, history)``: the trained model and one dict per epoch (losses, validation
+        metrics, patches/s).
+
+    Raises:
+        InputError: bad frames or configuration. WeightsError: unusable checkpoint or weights
+        path.
+    """
+    from tqdm import tqdm
+
+    cfg = config or TrainConfig()
+    enc = encoding or EncodingConfig()
+    if cfg.auto_bins:
+        enc = auto_encoding(frames, calibration, enc)
+    data = prepare_training_data(frames, calibration, enc, target_clip_mm=cfg.target_clip_mm)
+    train_ids, val_ids = split_frames(data.n_frames, cfg.val_fraction, seed)
+    model = CorrectionModel.untrained(calibration, enc, seed=seed, geodesic=geodesic)
+    model.range_net.target_clip_mm = cfg.target_clip_mm
+    nets = _Nets(model)
+    opt = torch.optim.SGD(
+        [{"params": nets.range_net.parameters(), "lr": cfg.lr_range},
+         {"params": nets.boundary_nets.parameters(), "lr": cfg.lr_boundary}],
+        momentum=cfg.momentum, weight_decay=cfg.weight_decay, foreach=True)
+    all_train = sample_pixels(data, train_ids, None, torch.Generator().manual_seed(seed))
+    weights = _class_weights(data, all_train, cfg)
+    val_flat = sample_pixels(data, val_ids, cfg.val_samples_per_frame,
+                             torch.Generator().manual_seed(seed + 1))
+    fingerprint = _fingerprint(cfg, seed, data)
+    ckpt = Path(checkpoint_dir) / CHECKPOINT_NAME if checkpoint_dir is not None else None
+    done, history = 0, []
+    if ckpt is not None:
+        ckpt.parent.mkdir(parents=True, exist_ok=True)
+        if ckpt.exists():
+            done, history = _load_checkpoint(ckpt, nets, opt, fingerprint)
+            log.info("resuming from %s after epoch %d", ckpt, done)
+    per_epoch = all_train.numel() if cfg.max_samples_per_frame is None else min(
+        all_train.numel(), cfg.max_samples_per_frame * len(train_ids))
+    threads = torch.get_num_threads()
+    if cfg.num_threads is not None:
+        torch.set_num_threads(cfg.num_threads)
+    try:
+        with tqdm(total=per_epoch * (cfg.epochs - done), disable=not progress, unit="patch",
+                  unit_scale=True, desc="train F+G") as bar:
+            for epoch in range(done, cfg.epochs):
+                stats = _run_epoch(nets, opt, data, train_ids, weights, cfg, seed, epoch, bar)
+                stats.update(evaluate_samples(nets, data, val_flat, weights, cfg))
+                history.append(stats)
+                log.info("epoch %d: %s", epoch + 1, stats)
+                if ckpt is not None:
+                    _save_checkpoint(ckpt, nets, opt, epoch + 1, history, fingerprint)
+    finally:
+        torch.set_num_threads(threads)
+    nets.eval()
+    model.metadata = {"training_data_digest": data.digest, "seed": seed,
+                      "train_config": asdict(cfg), "n_frames": data.n_frames,
+                      "train_frames": len(train_ids), "val_frames": val_ids,
+                      "final": history[-1] if history else {}}
+    if weights_path is not None:
+        save_weights(weights_path, model, training_data_digest=data.digest, overwrite=overwrite)
+    return model, history
+
