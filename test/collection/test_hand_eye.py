@@ -1,6 +1,6 @@
 """Hand–eye calibration on the simulated cell: plan, detection, solvers, recording, CLI.
 
-One simulated session (10 views, true hand-eye and SL offset moved off their defaults by a few
+One simulated session (8 views, true hand-eye and SL offset moved off their defaults by a few
 mm and ~1 degree) is rendered once per module (~10-20 s) and shared.
 """
 
@@ -24,7 +24,11 @@ from tof_mpd_ros.collection.hand_eye import (
     solve_hand_eye,
 )
 from tof_mpd_ros.collection.hand_eye_detect import detect_board
-from tof_mpd_ros.collection.hand_eye_io import read_hand_eye_recording, write_hand_eye_recording
+from tof_mpd_ros.collection.hand_eye_io import (
+    load_hand_eye_json,
+    read_hand_eye_recording,
+    write_hand_eye_recording,
+)
 from tof_mpd_ros.collection.hand_eye_plan import board_visible, default_sl_intrinsics
 from tof_mpd_ros.collection.hand_eye_sim import (
     HandEyeSimConfig,
@@ -48,7 +52,7 @@ from tof_mpd_ros.sim.structured_light import StructuredLightConfig
 from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M, solve_ik
 
 BOARD = CalibrationBoard()
-N_VIEWS = 10
+N_VIEWS = 8
 
 
 @pytest.fixture(scope="module")
@@ -86,7 +90,12 @@ def test_recovers_simulated_transforms_from_recording(session):
     # Corners are reprojected through the calibrated chain to a fraction of a pixel.
     assert result.residuals["chain_rms_px"]["tof"] < 0.3
     assert result.residuals["chain_rms_px"]["sl"] < 0.3
-    assert result.residuals["ax_xb"]["pairs"] == N_VIEWS * (N_VIEWS - 1) // 2
+    assert result.residuals["ax_xb"]["tof"]["pairs"] == N_VIEWS * (N_VIEWS - 1) // 2
+    # Arm and camera motions agree to about a millimetre and a tenth of a degree per view pair
+    # (single-view PnP noise); the fit averages it down to the accuracy above.
+    for camera in ("tof", "sl"):
+        assert result.residuals["ax_xb"][camera]["translation_rms_mm"] < 2.0
+        assert result.residuals["ax_xb"][camera]["rotation_rms_deg"] < 0.3
     assert set(result.residuals["linear_methods_chain_rms_px"]) >= {"TSAI", "PARK"}
 
 
@@ -99,17 +108,18 @@ def test_refinement_beats_the_linear_solution(session):
             < pose_difference(linear.camera_to_flange_m, session["x"])[0])
 
 
-def _blank(capture: HandEyeCapture, rng: np.random.Generator) -> HandEyeCapture:
-    """The view with the ToF amplitude replaced by noise (board not detectable)."""
-    noise = rng.uniform(50.0, 60.0, size=capture.tof_amplitude.shape).astype(np.float32)
-    return HandEyeCapture(capture.index, capture.stamp_ns, capture.tcp_to_base_m, noise,
+def _blank(capture: HandEyeCapture) -> HandEyeCapture:
+    """The view with a ToF amplitude image that shows no board (a smooth ramp)."""
+    h, w = capture.tof_amplitude.shape
+    ramp = np.tile(np.linspace(50.0, 60.0, w, dtype=np.float32), (h, 1))
+    return HandEyeCapture(capture.index, capture.stamp_ns, capture.tcp_to_base_m, ramp,
                           capture.sl_image)
 
 
 def test_failed_view_is_reported_not_dropped(session):
     data = session["data"]
     captures = list(data.captures)
-    captures[3] = _blank(captures[3], np.random.default_rng(0))
+    captures[3] = _blank(captures[3])
     result = solve_hand_eye(captures, BOARD, data.tof_intrinsics, data.sl_intrinsics)
     assert [(f.index, f.camera) for f in result.failures] == [(3, "tof")]
     assert "findChessboardCorners" in result.failures[0].reason
@@ -118,8 +128,7 @@ def test_failed_view_is_reported_not_dropped(session):
 
 
 def test_too_few_detectable_views_is_a_calibration_error(session, tmp_path):
-    rng = np.random.default_rng(1)
-    frames = [f if i < 3 else ToFFrame(f.range_mm, _blank(c, rng).tof_amplitude, f.intrinsics,
+    frames = [f if i < 3 else ToFFrame(f.range_mm, _blank(c).tof_amplitude, f.intrinsics,
                                        stamp_ns=f.stamp_ns)
               for i, (f, c) in enumerate(zip(session["frames"], session["captures"],
                                              strict=True))]
@@ -144,7 +153,26 @@ def test_cli_writes_transforms_and_residuals(session, tmp_path, capsys):
     assert pose_difference(matrix, session["x"])[0] < 1.0
     assert len(summary["camera_to_flange"]["ur_pose_vector"]) == 6
     assert summary["error_vs_sim_truth"]["sl_to_tof"]["translation_mm"] < 1.0
-    assert summary["residuals"]["ax_xb"]["rotation_rms_deg"] >= 0.0
+    assert summary["residuals"]["ax_xb"]["tof"]["rotation_rms_deg"] >= 0.0
+    # The file feeds later recordings.
+    camera_to_flange, sl_to_tof = load_hand_eye_json(out)
+    np.testing.assert_allclose(camera_to_flange, matrix)
+    assert pose_difference(sl_to_tof, session["s"])[0] < 1.0
+    out.write_text("{}")
+    with pytest.raises(CalibrationError, match="not a hand-eye result"):
+        load_hand_eye_json(out)
+
+
+def test_cli_simulate_records_then_calibrates(tmp_path, capsys):
+    path = tmp_path / "simulated"
+    assert main(["calibrate", "hand-eye", str(path), "--simulate", "--views", "5",
+                 "--seed", "3"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["views"] == 5 and (path / "metadata.yaml").exists()
+    error = summary["error_vs_sim_truth"]["camera_to_flange"]
+    assert error["translation_mm"] < 1.0 and error["rotation_deg"] < 0.2
+    # Refuses to overwrite the recording it made.
+    assert main(["calibrate", "hand-eye", str(path), "--simulate", "--views", "5"]) == 2
 
 
 def test_cli_help_says_what_it_reads_writes_and_how_long(capsys):
@@ -195,8 +223,9 @@ def _exact_views(x: np.ndarray, n: int, rng: np.random.Generator):
     board = make_pose(rot_x(math.pi), np.array([0.45, 0.0, 0.0]))
     tcp, cams = [], []
     for _ in range(n):
-        g = make_pose(rot_x(math.pi) @ rot_x(rng.uniform(-0.4, 0.4)) @ rot_y(rng.uniform(-0.4, 0.4))
-                      @ rot_z(rng.uniform(-1, 1)), np.array([0.45, 0.0, 0.35]) + rng.normal(0, 0.03, 3))
+        tilt = rot_x(rng.uniform(-0.4, 0.4)) @ rot_y(rng.uniform(-0.4, 0.4))
+        g = make_pose(rot_x(math.pi) @ tilt @ rot_z(rng.uniform(-1.0, 1.0)),
+                      np.array([0.45, 0.0, 0.35]) + rng.normal(0.0, 0.03, 3))
         tcp.append(g)
         cams.append(invert_pose(g @ x) @ board)
     return tcp, cams
@@ -226,8 +255,9 @@ def test_detection_labels_the_board_the_same_way_at_any_roll(roll_deg):
                      np.array([10.0, -5.0, 320.0]))
     image = render_sl_image(BOARD, true, intr, np.random.default_rng(0), supersample=2)
     det = detect_board(image, BOARD, intr)
+    # A mislabelled board would be off by 90-180 degrees; one view's PnP is good to ~0.3 deg.
     mm, deg = pose_difference(det.board_to_camera_m, pose_mm_to_m(true))
-    assert mm < 0.5 and deg < 0.2, (mm, deg)
+    assert mm < 1.0 and deg < 0.5, (mm, deg)
     assert det.rms_px < 0.3
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import CalibrationError
+from ..errors import CalibrationError, RecordingError
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -142,6 +142,8 @@ def _simulate_hand_eye(path: Path, views: int, seed: int) -> None:
     )
     from ..sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M
 
+    if path.exists():
+        raise RecordingError(f"{path} exists; --simulate refuses to overwrite a recording")
     rng = np.random.default_rng(seed)
     config = HandEyeSimConfig(n_views=views,
                               t_flange_camera_m=perturb_pose(DEFAULT_T_FLANGE_CAMERA_M, rng))

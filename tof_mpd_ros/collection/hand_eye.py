@@ -170,10 +170,6 @@ def _vec_to_pose(v: np.ndarray) -> np.ndarray:
     return make_pose(Rotation.from_rotvec(v[:3]).as_matrix(), v[3:])
 
 
-def _pose_to_vec(pose: np.ndarray) -> np.ndarray:
-    return np.concatenate([Rotation.from_matrix(pose[:3, :3]).as_rotvec(), pose[:3, 3]])
-
-
 # -------------------------------------------------------------------- linear hand-eye solvers
 
 
@@ -281,6 +277,11 @@ def ax_xb_residuals(tcp_to_base_m: Sequence[np.ndarray], board_to_camera_m: Sequ
                     camera_to_flange_m: np.ndarray) -> dict[str, float]:
     """Consistency of ``A X = X B`` over all view pairs.
 
+    Args:
+        tcp_to_base_m: (4, 4) flange poses in the base frame, metres, one per view.
+        board_to_camera_m: (4, 4) board poses in the camera frame (PnP), metres, same views.
+        camera_to_flange_m: (4, 4) the camera's pose in the flange frame, metres.
+
     Returns:
         RMS and max over pairs of the translation (mm) and rotation (deg) of
         ``(A X)^-1 (X B)``.
@@ -294,105 +295,106 @@ def ax_xb_residuals(tcp_to_base_m: Sequence[np.ndarray], board_to_camera_m: Sequ
             "rotation_max_deg": float(errors[:, 1].max()), "pairs": len(a)}
 
 
-def _project(points_cam: np.ndarray, intr: Intrinsics) -> np.ndarray:
-    """(..., 2) pixel coordinates of (..., 3) camera-frame points."""
-    return intr.project(points_cam)
-
-
-def _chain_errors(x: np.ndarray, board_to_base: np.ndarray, tcp: Sequence[np.ndarray],
-                  detections: Sequence[BoardDetection], object_points: np.ndarray,
-                  intr: Intrinsics, camera_in_tof: np.ndarray | None = None) -> np.ndarray:
-    """(V, N, 2) reprojection errors (px) of every corner through base -> flange -> camera."""
-    out = []
-    for g, det in zip(tcp, detections, strict=True):
-        cam_to_base = g @ x if camera_in_tof is None else g @ x @ camera_in_tof
-        board_in_cam = invert_pose(cam_to_base) @ board_to_base
-        pts = object_points @ board_in_cam[:3, :3].T + board_in_cam[:3, 3]
-        out.append(_project(pts, intr) - det.corners_px)
-    return np.asarray(out)
-
-
 def _rms(errors: np.ndarray) -> float:
+    """RMS length of (..., 2) pixel error vectors."""
     return float(np.sqrt(np.mean(np.sum(errors ** 2, axis=-1))))
-
-
-def _board_in_base(x: np.ndarray, tcp: Sequence[np.ndarray],
-                   detections: Sequence[BoardDetection]) -> np.ndarray:
-    """Board pose in the base implied by each view through X, averaged."""
-    return _average_poses([g @ x @ d.board_to_camera_m for g, d in zip(tcp, detections,
-                                                                         strict=True)])
 
 
 # ---------------------------------------------------------------------------- solver
 
 
 @dataclass
-class _Views:
-    """Detections that passed, per camera, with their TCP poses."""
+class _CameraViews:
+    """One camera's usable views: capture indices, TCP poses (m) and detections."""
 
-    tof_idx: list[int] = field(default_factory=list)
-    tof_tcp: list[np.ndarray] = field(default_factory=list)
-    tof_det: list[BoardDetection] = field(default_factory=list)
-    sl_idx: list[int] = field(default_factory=list)
-    sl_tcp: list[np.ndarray] = field(default_factory=list)
-    sl_det: list[BoardDetection] = field(default_factory=list)
-    failures: list[ViewFailure] = field(default_factory=list)
+    intrinsics: Intrinsics
+    index: list[int] = field(default_factory=list)
+    tcp: list[np.ndarray] = field(default_factory=list)
+    det: list[BoardDetection] = field(default_factory=list)
+
+    def board_poses(self) -> list[np.ndarray]:
+        """(4, 4) board -> camera poses (m) of the views."""
+        return [d.board_to_camera_m for d in self.det]
+
+    def pnp_rms_px(self) -> float:
+        return float(np.mean([d.rms_px for d in self.det]))
+
+    def chain_errors(self, camera_to_flange: np.ndarray, board_to_base: np.ndarray,
+                     object_points: np.ndarray) -> np.ndarray:
+        """(V, N, 2) reprojection errors (px) of every corner through base -> flange -> camera.
+
+        Args:
+            camera_to_flange: (4, 4) this camera's pose in the flange frame, m.
+            board_to_base: (4, 4) board pose in the base frame, m.
+            object_points: (N, 3) board corners, m.
+        """
+        errors = []
+        for g, det in zip(self.tcp, self.det, strict=True):
+            board_in_cam = invert_pose(g @ camera_to_flange) @ board_to_base
+            pts = object_points @ board_in_cam[:3, :3].T + board_in_cam[:3, 3]
+            errors.append(self.intrinsics.project(pts) - det.corners_px)
+        return np.asarray(errors)
+
+    def board_in_base(self, camera_to_flange: np.ndarray) -> np.ndarray:
+        """Board pose in the base (m) implied by each view through the hand-eye, averaged."""
+        return _average_poses([g @ camera_to_flange @ c
+                               for g, c in zip(self.tcp, self.board_poses(), strict=True)])
 
 
 def _detect_all(captures: Sequence[HandEyeCapture], board: CalibrationBoard,
-                tof_intrinsics: Intrinsics, sl_intrinsics: Intrinsics) -> _Views:
-    views = _Views()
+                tof_intrinsics: Intrinsics, sl_intrinsics: Intrinsics
+                ) -> tuple[_CameraViews, _CameraViews, list[ViewFailure]]:
+    """Detect the board in every image; a view or camera that fails is listed with why."""
+    tof, sl = _CameraViews(tof_intrinsics), _CameraViews(sl_intrinsics)
+    failures: list[ViewFailure] = []
     for cap in captures:
         if cap.tcp_to_base_m is None:
-            views.failures.append(ViewFailure(cap.index, "arm", "no TCP pose recorded"))
+            failures.append(ViewFailure(cap.index, "arm", "no TCP pose recorded"))
             continue
         tcp = check_array("tcp_to_base_m", cap.tcp_to_base_m, ndim=2, shape=(4, 4),
                           dtype_kind="fiu").astype(np.float64)
-        for camera, image, intr, upsample in (("tof", cap.tof_amplitude, tof_intrinsics,
-                                                TOF_UPSAMPLE),
-                                               ("sl", cap.sl_image, sl_intrinsics, 1)):
+        for name, views, image, upsample in (("tof", tof, cap.tof_amplitude, TOF_UPSAMPLE),
+                                             ("sl", sl, cap.sl_image, 1)):
             if image is None:
-                views.failures.append(ViewFailure(cap.index, camera, "no image recorded"))
+                failures.append(ViewFailure(cap.index, name, "no image recorded"))
                 continue
             try:
-                det = detect_board(image, board, intr, upsample=upsample)
+                det = detect_board(image, board, views.intrinsics, upsample=upsample)
             except CalibrationError as err:
-                views.failures.append(ViewFailure(cap.index, camera, str(err)))
+                failures.append(ViewFailure(cap.index, name, str(err)))
                 continue
-            getattr(views, f"{camera}_idx").append(cap.index)
-            getattr(views, f"{camera}_tcp").append(tcp)
-            getattr(views, f"{camera}_det").append(det)
-    return views
+            views.index.append(cap.index)
+            views.tcp.append(tcp)
+            views.det.append(det)
+    return tof, sl, failures
 
 
-def _require(count: int, camera: str, views: _Views, min_views: int) -> None:
-    if count >= min_views:
+def _require(views: _CameraViews, camera: str, failures: list[ViewFailure],
+             min_views: int) -> None:
+    """CalibrationError naming the views left out if ``views`` has fewer than ``min_views``."""
+    if len(views.det) >= min_views:
         return
-    reasons = "; ".join(f"view {f.index} {f.camera}: {f.reason}" for f in views.failures[:6])
-    more = len(views.failures) - 6
-    raise CalibrationError(
-        f"hand-eye needs at least {min_views} views with the board detected in the {camera} "
-        f"image, got {count}" + (f" (left out: {reasons}" + (f"; +{more} more" if more > 0
-                                                             else "") + ")"
-                                 if reasons else ""))
+    shown = "; ".join(f"view {f.index} {f.camera}: {f.reason}" for f in failures[:6])
+    if len(failures) > 6:
+        shown += f"; +{len(failures) - 6} more"
+    raise CalibrationError(f"hand-eye needs at least {min_views} views with the board detected "
+                           f"in the {camera} image, got {len(views.det)}"
+                           + (f" (left out: {shown})" if shown else ""))
 
 
-def _pick_linear(views: _Views, object_points: np.ndarray, intr: Intrinsics
+def _pick_linear(tof: _CameraViews, object_points: np.ndarray
                  ) -> tuple[str, np.ndarray, dict[str, float]]:
     """The linear method whose X reprojects the ToF corners best through the chain."""
     scores: dict[str, float] = {}
     best: tuple[float, str, np.ndarray] | None = None
-    board_in_cam = [d.board_to_camera_m for d in views.tof_det]
     for method in available_methods():
         try:
-            x = linear_hand_eye(views.tof_tcp, board_in_cam, method)
+            x = linear_hand_eye(tof.tcp, tof.board_poses(), method)
         except (CalibrationError, cv2.error, np.linalg.LinAlgError):
             continue
         if not np.all(np.isfinite(x)):
             continue
-        b = _board_in_base(x, views.tof_tcp, views.tof_det)
-        scores[method] = _rms(_chain_errors(x, b, views.tof_tcp, views.tof_det, object_points,
-                                            intr))
+        scores[method] = _rms(tof.chain_errors(x, tof.board_in_base(x), object_points))
         if best is None or scores[method] < best[0]:
             best = (scores[method], method, x)
     if best is None:
@@ -401,19 +403,19 @@ def _pick_linear(views: _Views, object_points: np.ndarray, intr: Intrinsics
     return best[1], best[2], scores
 
 
-def _sl_to_tof_initial(views: _Views) -> np.ndarray:
+def _sl_to_tof_initial(tof: _CameraViews, sl: _CameraViews) -> np.ndarray:
     """Average over views with both detections of ``C_tof C_sl^-1`` (SL pose in ToF frame)."""
-    sl = dict(zip(views.sl_idx, views.sl_det, strict=True))
-    pairs = [t.board_to_camera_m @ invert_pose(sl[i].board_to_camera_m)
-             for i, t in zip(views.tof_idx, views.tof_det, strict=True) if i in sl]
+    sl_pose = dict(zip(sl.index, sl.board_poses(), strict=True))
+    pairs = [c @ invert_pose(sl_pose[i]) for i, c in zip(tof.index, tof.board_poses(),
+                                                          strict=True) if i in sl_pose]
     if not pairs:
         raise CalibrationError("no view has the board detected by both the ToF and the SL "
                                "camera; the ToF-to-SL transform cannot be estimated")
     return _average_poses(pairs)
 
 
-def _refine(x0: np.ndarray, s0: np.ndarray, b0: np.ndarray, views: _Views,
-            object_points: np.ndarray, tof_intr: Intrinsics, sl_intr: Intrinsics
+def _refine(x0: np.ndarray, s0: np.ndarray, b0: np.ndarray, tof: _CameraViews,
+            sl: _CameraViews, object_points: np.ndarray
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Joint least squares of X, SL-in-ToF and board-in-base over every corner of both cameras.
 
@@ -421,19 +423,18 @@ def _refine(x0: np.ndarray, s0: np.ndarray, b0: np.ndarray, views: _Views,
     and the coarse ToF image count by their precision. Parameters are small corrections
     (rotation vector, metres) applied on the right of the initial poses.
     """
-    sigma_tof = max(float(np.median([d.rms_px for d in views.tof_det])), 0.02)
-    sigma_sl = max(float(np.median([d.rms_px for d in views.sl_det])), 0.02)
+    sigma_tof = max(float(np.median([d.rms_px for d in tof.det])), 0.02)
+    sigma_sl = max(float(np.median([d.rms_px for d in sl.det])), 0.02)
 
     def unpack(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return x0 @ _vec_to_pose(p[0:6]), s0 @ _vec_to_pose(p[6:12]), b0 @ _vec_to_pose(p[12:18])
 
     def residuals(p: np.ndarray) -> np.ndarray:
         x, s, b = unpack(p)
-        tof = _chain_errors(x, b, views.tof_tcp, views.tof_det, object_points, tof_intr)
-        sl = _chain_errors(x, b, views.sl_tcp, views.sl_det, object_points, sl_intr, s)
-        return np.concatenate([tof.ravel() / sigma_tof, sl.ravel() / sigma_sl])
+        return np.concatenate([tof.chain_errors(x, b, object_points).ravel() / sigma_tof,
+                               sl.chain_errors(x @ s, b, object_points).ravel() / sigma_sl])
 
-    # x_scale: a rotation of 1 mrad moves corners about as much as 0.3 mm at these ranges.
+    # A 1 mrad turn moves corners about as much as a 0.3 mm shift at these ranges.
     scale = np.tile(np.array([1e-3] * 3 + [3e-4] * 3), 3)
     fit = least_squares(residuals, np.zeros(18), x_scale=scale, method="lm")
     return unpack(fit.x)
@@ -462,25 +463,26 @@ def solve_hand_eye(captures: Sequence[HandEyeCapture], board: CalibrationBoard,
     if min_views < 3:
         raise InputError(f"min_views must be >= 3 (hand-eye needs two independent motions), "
                          f"got {min_views}")
-    views = _detect_all(captures, board, tof_intrinsics, sl_intrinsics)
-    _require(len(views.tof_det), "ToF amplitude", views, min_views)
-    _require(len(views.sl_det), "SL", views, min_views)
+    tof, sl, failures = _detect_all(captures, board, tof_intrinsics, sl_intrinsics)
+    _require(tof, "ToF amplitude", failures, min_views)
+    _require(sl, "SL", failures, min_views)
     obj = board.object_points_m()
-    method, x, method_rms = _pick_linear(views, obj, tof_intrinsics)
-    s = _sl_to_tof_initial(views)
-    b = _board_in_base(x, views.tof_tcp, views.tof_det)
+    method, x, method_rms = _pick_linear(tof, obj)
+    s = _sl_to_tof_initial(tof, sl)
+    b = tof.board_in_base(x)
     if refine:
-        x, s, b = _refine(x, s, b, views, obj, tof_intrinsics, sl_intrinsics)
+        x, s, b = _refine(x, s, b, tof, sl, obj)
     residuals = {
-        "pnp_rms_px": {"tof": float(np.mean([d.rms_px for d in views.tof_det])),
-                       "sl": float(np.mean([d.rms_px for d in views.sl_det]))},
-        "chain_rms_px": {
-            "tof": _rms(_chain_errors(x, b, views.tof_tcp, views.tof_det, obj, tof_intrinsics)),
-            "sl": _rms(_chain_errors(x, b, views.sl_tcp, views.sl_det, obj, sl_intrinsics, s))},
-        "ax_xb": ax_xb_residuals(views.tof_tcp, [d.board_to_camera_m for d in views.tof_det], x),
+        "pnp_rms_px": {"tof": tof.pnp_rms_px(), "sl": sl.pnp_rms_px()},
+        "chain_rms_px": {"tof": _rms(tof.chain_errors(x, b, obj)),
+                         "sl": _rms(sl.chain_errors(x @ s, b, obj))},
+        # A X = X B over view pairs with each camera's own PnP poses: the ToF one shows the
+        # coarse amplitude image's pose noise, the SL one (X S for the SL camera) the sharper.
+        "ax_xb": {"tof": ax_xb_residuals(tof.tcp, tof.board_poses(), x),
+                  "sl": ax_xb_residuals(sl.tcp, sl.board_poses(), x @ s)},
         "linear_methods_chain_rms_px": method_rms,
         "refined": refine,
     }
     return HandEyeResult(camera_to_flange_m=x, sl_to_tof_m=s, board_to_base_m=b, method=method,
-                         tof_views=tuple(views.tof_idx), sl_views=tuple(views.sl_idx),
-                         failures=tuple(views.failures), residuals=residuals)
+                         tof_views=tuple(tof.index), sl_views=tuple(sl.index),
+                         failures=tuple(failures), residuals=residuals)

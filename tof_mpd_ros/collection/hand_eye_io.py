@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from ..camera import Intrinsics
-from ..errors import InputError, RecordingError
+from ..errors import CalibrationError, InputError, RecordingError
 from ..frame import ToFFrame
 from ..recordings import RecordingReader, RecordingWriter, convert, msgdefs
 from .hand_eye import HandEyeCapture
@@ -170,3 +170,26 @@ def read_hand_eye_recording(path: str | Path, *,
             sl_image=None if image is None else convert.image_pixels(image, SL_ENCODINGS,
                                                                      "SL image")[0]))
     return HandEyeRecording(captures, board, frames[0].intrinsics, sl_intrinsics, dict(custom))
+
+
+def load_hand_eye_json(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """The transforms of a ``tof-mpd calibrate hand-eye -o OUT.json`` result, for recordings.
+
+    Returns:
+        ((4, 4) float64 ToF camera -> flange, (4, 4) float64 SL camera -> ToF camera), metres.
+
+    Raises:
+        CalibrationError: the file is missing, not JSON, or lacks the transforms.
+    """
+    try:
+        summary = json.loads(Path(path).read_text())
+        matrices = [np.asarray(summary[k]["matrix_m"], dtype=np.float64)
+                    for k in ("camera_to_flange", "sl_to_tof")]
+    except (OSError, json.JSONDecodeError, KeyError, TypeError, ValueError) as err:
+        raise CalibrationError(f"{path}: not a hand-eye result (expected JSON with "
+                               f"camera_to_flange.matrix_m and sl_to_tof.matrix_m): {err}"
+                               ) from err
+    for m in matrices:
+        if m.shape != (4, 4) or not np.all(np.isfinite(m)):
+            raise CalibrationError(f"{path}: transforms must be finite 4x4 matrices")
+    return matrices[0], matrices[1]
