@@ -15,6 +15,7 @@ Pipeline (each named effect can be switched off in :class:`.config.ToFConfig`):
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from .effects.phase_wrapping import PhaseWrapping
 from .phasor import direct_phasor, phasor_to_range, unwrap_to_guide
 from .rays import ray_directions
 from .reference import surface_from_reference
-from .registry import EFFECTS
+from .registry import EFFECTS, effect_names
 
 
 @dataclass
@@ -119,53 +120,64 @@ def _footprint_hit(samples: SurfaceImage, s: int, mixing: bool) -> np.ndarray:
     return hit.reshape(h, s, w, s).any(axis=(1, 3))
 
 
+def _run_stage(stage: str, x: Any, config: ToFConfig, ctx: RenderContext) -> Any:
+    """Apply the enabled effects of ``stage`` in registry order."""
+    for name in effect_names(stage):
+        cfg = config.effects[name]
+        # noise_model replaces noise: only one noise draw per frame
+        if name == "noise" and config.effects["noise_model"].enabled:
+            continue
+        if cfg.enabled:
+            x = EFFECTS[name].apply(x, cfg.params, ctx)
+    return x
+
+
+def _pixel_phasors(samples: SurfaceImage, config: ToFConfig, ctx: RenderContext) -> np.ndarray:
+    """(H, W) complex128 direct phasor of each pixel after the footprint stage."""
+    s = ctx.supersample
+    z_samples = direct_phasor(samples.range_mm, samples.normal, samples.albedo,
+                              ray_directions(samples.intrinsics), config.mod_freq_hz,
+                              config.light_power)
+    if config.effects["mixed_pixels"].enabled:
+        return _run_stage("footprint", z_samples, config, ctx)
+    # no footprint: the ray through the pixel centre only
+    return z_samples[s // 2::s, s // 2::s] if s > 1 else z_samples
+
+
+def _readout(z: np.ndarray, config: ToFConfig, ctx: RenderContext) -> np.ndarray:
+    """(H, W) float64 range in mm of the phasors, with the camera's systematic errors."""
+    if config.effects["phase_wrapping"].enabled:
+        range_mm = _run_stage("readout", z, config, ctx)
+    else:
+        range_mm = PhaseWrapping.unwrapped(z, ctx)
+    ctx.amplitude = np.abs(z)
+    return _run_stage("range", range_mm, config, ctx)
+
+
 def _render(samples: SurfaceImage, config: ToFConfig, rng: np.random.Generator,
             supersample: int, frame_index: int, motion: CameraMotion | None) -> ToFMeasurement:
     s = supersample
-    effects = config.effects
     ctx = RenderContext(intrinsics=pixel_intrinsics(samples.intrinsics, s), surface=samples,
                         samples=samples, supersample=s, mod_freq_hz=config.mod_freq_hz,
                         light_power=config.light_power, rng=rng, frame_index=int(frame_index),
-                        motion=motion, noise_params=dict(effects["noise"].params))
-    for name in ("hand_eye", "time_offset"):
-        if effects[name].enabled:
-            samples = EFFECTS[name].apply(samples, effects[name].params, ctx)
+                        motion=motion, noise_params=dict(config.effects["noise"].params))
+    samples = _run_stage("geometry", samples, config, ctx)
     ctx.samples = samples
     ctx.surface = centre_samples(samples, s)
     ctx.true_range_mm = ctx.surface.range_mm
 
-    z_samples = direct_phasor(samples.range_mm, samples.normal, samples.albedo,
-                              ray_directions(samples.intrinsics), config.mod_freq_hz,
-                              config.light_power)
-    mixing = effects["mixed_pixels"].enabled
-    if mixing:
-        z = EFFECTS["mixed_pixels"].apply(z_samples, effects["mixed_pixels"].params, ctx)
-    else:
-        z = z_samples[s // 2::s, s // 2::s] if s > 1 else z_samples
-    direct = z
-    for name in ("multipath", "subsurface", "lens_scatter"):
-        if effects[name].enabled:
-            z = EFFECTS[name].apply(z, effects[name].params, ctx)
-    noise = "noise_model" if effects["noise_model"].enabled else "noise"
-    if effects[noise].enabled:
-        z = EFFECTS[noise].apply(z, effects[noise].params, ctx)
+    direct = _pixel_phasors(samples, config, ctx)
+    z = _run_stage("phasor", direct, config, ctx)
+    range_mm = _readout(z, config, ctx)
+    amplitude = ctx.amplitude
 
-    amplitude = np.abs(z)
-    if effects["phase_wrapping"].enabled:
-        rng_mm = EFFECTS["phase_wrapping"].apply(z, effects["phase_wrapping"].params, ctx)
-    else:
-        rng_mm = PhaseWrapping.unwrapped(z, ctx)
-    ctx.amplitude = amplitude
-    for name in ("wiggling", "amplitude_bias", "pixel_offset", "temperature_drift"):
-        if effects[name].enabled:
-            rng_mm = EFFECTS[name].apply(rng_mm, effects[name].params, ctx)
-
+    mixing = config.effects["mixed_pixels"].enabled
     valid = _footprint_hit(samples, s, mixing) & (amplitude >= config.min_amplitude)
     direct_range = unwrap_to_guide(phasor_to_range(direct, config.mod_freq_hz),
                                    ctx.true_range_mm, config.mod_freq_hz)
     mp = ctx.multipath_phasor
     return ToFMeasurement(
-        range_mm=np.where(valid, rng_mm, np.nan).astype(np.float32),
+        range_mm=np.where(valid, range_mm, np.nan).astype(np.float32),
         amplitude=np.where(valid, amplitude, np.nan).astype(np.float32),
         intrinsics=ctx.intrinsics, mod_freq_hz=config.mod_freq_hz,
         true_range_mm=ctx.true_range_mm.astype(np.float32),

@@ -209,7 +209,8 @@ def _tile_dark(x0, x1, x2, n0, n1, n2, b, min_cos):  # pragma: no cover - compil
     return -(b[4] * c0 + b[5] * c1 + b[6] * c2) + b[7] + b[8] * (dist + radius) <= floor
 
 
-@nb.njit(parallel=True, fastmath=True, cache=True)
+# fast-math without the no-NaN/no-inf assumptions: holes in the depth image are +inf
+@nb.njit(parallel=True, fastmath={"nsz", "arcp", "contract", "afn", "reassoc"}, cache=True)
 def _gather(rx_pos, rx_nrm, rx_u, rx_v, s_pos, s_nrm, s_uv, s_emi_re, s_emi_im, s_area,
             tile_start, tile_bounds, depth, fx, fy, cx, cy, k_path, step_px, max_steps, eps_mm,
             eps_rel, min_cos, skip2):  # pragma: no cover - compiled
