@@ -58,8 +58,9 @@ def _spec(args: argparse.Namespace):
     overrides = {"n_train_scenes": args.train_scenes, "n_test_scenes": args.test_scenes,
                  "views_per_scene": args.views, "n_calibration": args.calibration}
     values = {**spec.__dict__, **{k: v for k, v in overrides.items() if v is not None}}
-    if min(values["n_train_scenes"], values["n_test_scenes"], values["views_per_scene"]) < 1:
-        raise InputError("scenes and views must be >= 1")
+    scenes = (values["n_train_scenes"], values["n_test_scenes"])
+    if min(scenes) < 0 or sum(scenes) < 1 or values["views_per_scene"] < 1:
+        raise InputError("need scene counts >= 0 (at least one scene) and views >= 1")
     return DatasetSpec(**values)
 
 
