@@ -121,3 +121,27 @@ def test_end_to_end_with_real_edge_and_geodesic_modules() -> None:
     res = correct(model, r, a)
     assert np.isnan(res.range_mm[3, 4])
     assert np.isfinite(res.range_mm[res.valid]).all()
+
+
+def test_fully_invalid_frame_in_a_batch(geodesic_stub) -> None:
+    model = _model()
+    r, a = _frame(6)
+    dead = np.full_like(r, np.nan)
+    res = correct(model, np.stack([r, dead, np.zeros_like(r)]), np.stack([a, a, a]))
+    assert np.isfinite(res.range_mm[0]).all()
+    for i in (1, 2):
+        assert np.isnan(res.range_mm[i]).all() and not res.valid[i].any()
+        assert not res.edges[i].any() and (res.confidence[i] == 0).all()
+
+
+def test_bfloat16_precision_stays_close(geodesic_stub) -> None:
+    model = _model()
+    with torch.no_grad():   # make F depend on the patch so precision matters
+        gen = torch.Generator().manual_seed(0)
+        model.range_net.layers[-1].weight.normal_(0, 0.5, generator=gen)
+    r, a = _frame(7)
+    f32 = correct(model, r, a, use_boundary=False)
+    b16 = correct(model, r, a, use_boundary=False, precision="bfloat16")
+    assert np.abs(f32.range_mm - b16.range_mm).max() < 0.1     # mm
+    with pytest.raises(InputError, match="precision"):
+        correct(model, r, a, precision="int8")

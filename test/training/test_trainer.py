@@ -98,6 +98,8 @@ def test_weights_file_written_and_loadable(frames, identity, tmp_path: Path) -> 
     assert back.metadata["file"]["training_data_digest"] == model.metadata[
         "training_data_digest"]
     assert back.encoding == model.encoding
+    with pytest.raises(WeightsError, match="exists; pass overwrite=True"):
+        train(frames, identity, FAST, seed=0, weights_path=path, progress=False)
     f = frames[0]
     np.testing.assert_array_equal(
         correct(back, f.range_mm, f.amplitude, use_boundary=False).range_f_mm,
@@ -109,6 +111,10 @@ def test_split_is_by_frame_and_seeded() -> None:
     assert len(va) == 2 and sorted(tr + va) == list(range(10))
     assert split_frames(10, 0.2, seed=0) == (tr, va)
     assert split_frames(1, 0.5, seed=0) == ([0], [])
+    scenes = [0, 0, 0, 1, 1, 1, 2, 2, 2, 3]
+    tr, va = split_frames(10, 0.25, seed=1, groups=scenes)
+    assert va and sorted(tr + va) == list(range(10))
+    assert {scenes[i] for i in tr}.isdisjoint({scenes[i] for i in va})   # whole scenes
 
 
 def test_fit_calibration_from_checkerboard_frames() -> None:

@@ -5,8 +5,8 @@
 1. the per-pixel intrinsic calibration, giving R (NaN where the measurement is invalid);
 2. one patch encoding of every pixel (im2col of the NaN-padded frame, column layout), shared by
    both networks: :class:`~.networks.FusedPatchNets` runs F's and the four G heads' first layers
-   as two GEMMs (x_R rows, x_A rows against a stacked 121 x 200 weight), F's one-hot terms as
-   row lookups, then the small layers (G's as batched GEMMs);
+   as two GEMMs (a stacked 200 x 121 weight against the x_R and x_A rows), F's one-hot terms as
+   lookups, then the small layers (G's as batched GEMMs), all channels-first without copies;
 3. R_F = R + F(p);
 4. G's four edge probabilities -> ``edges.edge_map_from_responses`` (max over orientations,
    non-maximum suppression, hysteresis) -> binary edge map;
@@ -203,7 +203,7 @@ def _correct_one(model: CorrectionModel, fused: FusedPatchNets, enc: ColumnEncod
     if not use_g:
         return (range_f, np.zeros((h, w), bool), valid.astype(np.float32), calib, range_f,
                 valid)
-    scores = probs.T.reshape(-1, h, w).cpu().numpy()                     # (4, H, W)
+    scores = probs.reshape(-1, h, w).cpu().numpy()                       # (4, H, W)
     scores = np.where(valid, scores, np.float32(0.0)).astype(np.float32)
     confidence = np.where(valid, 1.0 - scores.max(axis=0), 0.0).astype(np.float32)
     edges, filtered = _filter_one(model.geodesic, range_f, scores)

@@ -1,8 +1,8 @@
 """Offline training of F and G (paper §III, §V): SGD with momentum, batch 500, 40 epochs.
 
 ``train(frames, calibration, config, seed=...)`` prepares the frames (calibration, targets,
-ground-truth edges, see :mod:`.samples`), splits them *by frame* into training and validation
-sets, and trains both networks on the same stream of patches:
+ground-truth edges, see :mod:`.samples`), splits them by frame (or by caller-given groups such as
+scenes) into training and validation sets, and trains both networks on one stream of patches:
 
 * F minimises the squared error between its normalised output and ``t / T`` (the paper's
   Euclidean loss on the target truncated to +-T = 15 mm);
@@ -135,14 +135,33 @@ def fit_calibration(frames: Sequence[ToFFrame], **kwargs: Any) -> IntrinsicCalib
                                     np.stack([f.reference_mm for f in frames]), **kwargs)
 
 
-def split_frames(n: int, val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
-    """Seeded split of frame indices into (train, validation); validation is never empty when
-    ``val_fraction > 0`` and ``n >= 2``."""
+def split_frames(n: int, val_fraction: float, seed: int,
+                 groups: Sequence[int] | None = None) -> tuple[list[int], list[int]]:
+    """Seeded split of frame indices into (train, validation).
+
+    Args:
+        n: number of frames.
+        val_fraction: share of the groups held out.
+        seed: seeds the permutation.
+        groups: (n,) group id per frame (e.g. the scene); a group goes to one side as a whole,
+            so views of one scene never straddle the split. None = every frame its own group.
+
+    Returns:
+        Sorted frame indices ``(train, validation)``; validation is never empty when
+        ``val_fraction > 0`` and there are two or more groups.
+    """
     if n == 0:
         return [], []
-    order = np.random.default_rng(seed).permutation(n).tolist()
-    n_val = 0 if val_fraction == 0 or n < 2 else max(1, round(n * val_fraction))
-    return sorted(order[n_val:]), sorted(order[:n_val])
+    ids = list(range(n)) if groups is None else [int(g) for g in groups]
+    if len(ids) != n:
+        raise InputError(f"groups must give one id per frame: {n} frames, {len(ids)} ids")
+    unique = sorted(set(ids))
+    order = np.random.default_rng(seed).permutation(len(unique)).tolist()
+    n_val = 0 if val_fraction == 0 or len(unique) < 2 else max(1, round(len(unique) *
+                                                                         val_fraction))
+    held_out = {unique[i] for i in order[:n_val]}
+    return ([i for i in range(n) if ids[i] not in held_out],
+            [i for i in range(n) if ids[i] in held_out])
 
 
 class _Nets(torch.nn.Module):
@@ -236,14 +255,15 @@ def _run_epoch(nets: _Nets, opt: torch.optim.Optimizer, data: TrainingData, trai
 
 
 @torch.no_grad()
-def evaluate_samples(nets: _Nets, data: TrainingData, flat: torch.Tensor, weights: torch.Tensor,
-                     cfg: TrainConfig) -> dict[str, float]:
+def _validate(nets: _Nets, data: TrainingData, flat: torch.Tensor, weights: torch.Tensor,
+              cfg: TrainConfig) -> dict[str, float]:
     """Validation metrics on the pixels ``flat``: range errors before/after F (untruncated
-    reference, mm), the fraction within 5 mm (the paper's metric), G loss and edge recall."""
+    reference, mm), the fraction within 5 mm (the paper's metric), G loss, and per-pixel edge
+    recall / precision of the heads at probability 0.5 (before non-maximum suppression)."""
     if flat.numel() == 0:
         return {}
     nets.eval()
-    err_before, err_after, loss_g, hits, positives = [], [], 0.0, 0, 0
+    err_before, err_after, loss_g, hits, positives, fired = [], [], 0.0, 0, 0, 0
     for c0 in range(0, flat.numel(), 20_000):
         idx = flat[c0:c0 + 20_000]
         feats, target, group = data.gather(idx)
@@ -253,26 +273,28 @@ def evaluate_samples(nets: _Nets, data: TrainingData, flat: torch.Tensor, weight
         err_after.append(r + nets.range_net(feats) - ref)
         _, lg = _losses(nets, feats, target, group, weights, cfg.target_clip_mm)
         loss_g += float(lg) * idx.numel()
-        probs = nets.boundary_nets.probabilities(feats)
+        fires = nets.boundary_nets.probabilities(feats) > 0.5                 # (M, 4)
         on_edge = group >= 0
         positives += int(on_edge.sum())
-        hits += int((probs[on_edge, group[on_edge]] > 0.5).sum())
+        hits += int(fires[on_edge, group[on_edge]].sum())
+        fired += int(fires.sum())
     before, after = torch.cat(err_before), torch.cat(err_after)
     return {"val_rmse_before_mm": float(before.square().mean().sqrt()),
             "val_rmse_mm": float(after.square().mean().sqrt()),
             "val_within_5mm_before": float((before.abs() < 5).float().mean()),
             "val_within_5mm": float((after.abs() < 5).float().mean()),
             "val_loss_boundary": loss_g / flat.numel(),
-            "val_edge_recall": hits / positives if positives else math.nan}
+            "val_edge_recall": hits / positives if positives else math.nan,
+            "val_edge_precision": hits / fired if fired else math.nan}
 
 
-def _fingerprint(cfg: TrainConfig, seed: int, data: TrainingData) -> str:
+def _fingerprint(cfg: TrainConfig, seed: int, data: TrainingData, val_ids: list[int]) -> str:
     """What a checkpoint must match to be resumed. ``epochs`` is left out on purpose: nothing
     depends on it (no schedule), so a finished run can be extended by asking for more epochs;
     ``chunk_batches``, ``prefetch`` and ``num_threads`` change speed, not the maths."""
     settings = {k: v for k, v in asdict(cfg).items()
                 if k not in ("epochs", "chunk_batches", "prefetch", "num_threads")}
-    return json.dumps({"config": settings, "seed": seed, "data": data.digest,
+    return json.dumps({"config": settings, "seed": seed, "data": data.digest, "val": val_ids,
                        "encoding": data.encoding.as_dict()}, sort_keys=True)
 
 
@@ -311,6 +333,7 @@ def train(
     seed: int = 0,
     encoding: EncodingConfig | None = None,
     geodesic: GeodesicParams | None = None,
+    groups: Sequence[int] | None = None,
     checkpoint_dir: str | os.PathLike[str] | None = None,
     weights_path: str | os.PathLike[str] | None = None,
     overwrite: bool = False,
@@ -327,6 +350,8 @@ def train(
         encoding: encoding constants (default :class:`EncodingConfig`; bins set from the data
             when ``config.auto_bins``).
         geodesic: geodesic constants stored in the model.
+        groups: (N,) group id per frame (e.g. scene) for the validation split: a group is held
+            out as a whole. None = split by frame.
         checkpoint_dir: write ``checkpoint.pt`` here after every epoch and resume from it.
         weights_path: also write the final model there (see :func:`save_weights`).
         overwrite: allow replacing an existing ``weights_path``.
@@ -343,11 +368,15 @@ def train(
     from tqdm import tqdm
 
     cfg = config or TrainConfig()
+    if weights_path is not None and Path(weights_path).exists() and not overwrite:
+        # Refuse before training, not after an hour of it.
+        raise WeightsError(f"weights file {weights_path} exists; pass overwrite=True to "
+                           "replace it")
     enc = encoding or EncodingConfig()
     if cfg.auto_bins:
         enc = auto_encoding(frames, calibration, enc)
     data = prepare_training_data(frames, calibration, enc, target_clip_mm=cfg.target_clip_mm)
-    train_ids, val_ids = split_frames(data.n_frames, cfg.val_fraction, seed)
+    train_ids, val_ids = split_frames(data.n_frames, cfg.val_fraction, seed, groups)
     model = CorrectionModel.untrained(calibration, enc, seed=seed, geodesic=geodesic)
     model.range_net.target_clip_mm = cfg.target_clip_mm
     nets = _Nets(model)
@@ -359,7 +388,7 @@ def train(
     weights = _class_weights(data, all_train, cfg)
     val_flat = sample_pixels(data, val_ids, cfg.val_samples_per_frame,
                              torch.Generator().manual_seed(seed + 1))
-    fingerprint = _fingerprint(cfg, seed, data)
+    fingerprint = _fingerprint(cfg, seed, data, val_ids)
     ckpt = Path(checkpoint_dir) / CHECKPOINT_NAME if checkpoint_dir is not None else None
     done, history = 0, []
     if ckpt is not None:
@@ -367,8 +396,10 @@ def train(
         if ckpt.exists():
             done, history = _load_checkpoint(ckpt, nets, opt, fingerprint)
             log.info("resuming from %s after epoch %d", ckpt, done)
-    per_epoch = all_train.numel() if cfg.max_samples_per_frame is None else min(
-        all_train.numel(), cfg.max_samples_per_frame * len(train_ids))
+    per_frame = data.usable[train_ids].flatten(1).sum(1)
+    if cfg.max_samples_per_frame is not None:
+        per_frame = per_frame.clamp(max=cfg.max_samples_per_frame)
+    per_epoch = int(per_frame.sum())
     threads = torch.get_num_threads()
     if cfg.num_threads is not None:
         torch.set_num_threads(cfg.num_threads)
@@ -377,7 +408,7 @@ def train(
                   unit_scale=True, desc="train F+G") as bar:
             for epoch in range(done, cfg.epochs):
                 stats = _run_epoch(nets, opt, data, train_ids, weights, cfg, seed, epoch, bar)
-                stats.update(evaluate_samples(nets, data, val_flat, weights, cfg))
+                stats.update(_validate(nets, data, val_flat, weights, cfg))
                 history.append(stats)
                 log.info("epoch %d: %s", epoch + 1, stats)
                 if ckpt is not None:
