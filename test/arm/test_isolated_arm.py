@@ -54,7 +54,7 @@ def test_hanging_connect_times_out_and_kills_the_client() -> None:
 def test_client_crash_mid_plan_is_reported_with_its_exit_code() -> None:
     arm = IsolatedArm("sim", faults={"crash_on_move": 2})
     arm.move_to(reachable_pose())
-    with pytest.raises(ArmError, match="died during move_l .exit code 134"):
+    with pytest.raises(ArmError, match=r"died during move_l \(exit code 134"):
         arm.move_to(reachable_pose(0.02))
     assert not arm.alive
     with pytest.raises(ArmError, match="not running"):

@@ -13,11 +13,17 @@ and in ``custom_data``: ``tof_mpd_ros.hand_eye.board`` (the board as JSON: squar
 in mm, albedos) and the two SL topic names. A simulated recording may also hold
 ``tof_mpd_ros.hand_eye.sim_truth`` (the true transforms, JSON, metres) so a report can show the
 error; the calibration never reads it.
+
+The ``collector`` node writes the same format view by view (:func:`hand_eye_custom_data`,
+:func:`write_hand_eye_view`) into the parts of a session; :func:`read_hand_eye_recording` reads
+one part or a whole session directory (all parts merged, so a resumed calibration session
+solves as one).
 """
 
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -36,10 +42,15 @@ KEY_BOARD = "tof_mpd_ros.hand_eye.board"
 KEY_SL_IMAGE = "tof_mpd_ros.hand_eye.sl_image_topic"
 KEY_SL_INFO = "tof_mpd_ros.hand_eye.sl_camera_info_topic"
 KEY_SIM_TRUTH = "tof_mpd_ros.hand_eye.sim_truth"
+# Written by the collector into recordings made with a calibration result (hand_eye_file).
+KEY_CALIBRATION_FILE = "tof_mpd_ros.hand_eye.calibration_file"
+KEY_SL_TO_TOF = "tof_mpd_ros.hand_eye.sl_to_tof"
 SL_IMAGE_TOPIC = "/sl/image_raw"
 SL_CAMERA_INFO_TOPIC = "/sl/camera_info"
 SL_FRAME_ID = "sl_optical_frame"
 SL_ENCODINGS = ("mono8", "mono16", "32FC1", "64FC1")
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,25 +100,54 @@ def write_hand_eye_recording(path: str | Path, frames: Sequence[ToFFrame],
         raise InputError(f"need one TCP pose and one SL image per ToF frame, got "
                          f"{len(frames)} frames, {len(tcp_to_base_m)} poses, "
                          f"{len(sl_images)} images")
+    custom = hand_eye_custom_data(board, sim_truth=sim_truth)
+    with RecordingWriter(path, custom_data=custom, overwrite=overwrite) as writer:
+        for frame, tcp, image in zip(frames, tcp_to_base_m, sl_images, strict=True):
+            write_hand_eye_view(writer, frame, tcp, image, sl_intrinsics)
+
+
+def hand_eye_custom_data(board: CalibrationBoard, *,
+                         sim_truth: Mapping[str, np.ndarray] | None = None) -> dict[str, str]:
+    """The ``custom_data`` of a calibration recording (for ``RecordingWriter(custom_data=)``).
+
+    Args:
+        board: the target.
+        sim_truth: optional true transforms (name -> (4, 4), metres) of a simulation.
+    """
     custom = {KEY_BOARD: json.dumps(board.as_dict()), KEY_SL_IMAGE: SL_IMAGE_TOPIC,
               KEY_SL_INFO: SL_CAMERA_INFO_TOPIC}
     if sim_truth is not None:
         custom[KEY_SIM_TRUTH] = json.dumps({k: np.asarray(v).tolist()
                                             for k, v in sim_truth.items()})
-    with RecordingWriter(path, custom_data=custom, overwrite=overwrite) as writer:
-        for frame, tcp, image in zip(frames, tcp_to_base_m, sl_images, strict=True):
-            unposed = ToFFrame(frame.range_mm, frame.amplitude, frame.intrinsics,
-                               mod_freq_hz=frame.mod_freq_hz, stamp_ns=frame.stamp_ns)
-            writer.write_frame(unposed, tcp_pose=tcp)
-            pixels = np.asarray(image)
-            encoding = "mono8" if pixels.dtype == np.uint8 else "32FC1"
-            stamp = frame.stamp_ns
-            writer.write(SL_IMAGE_TOPIC, msgdefs.IMAGE, convert.image_dict(
-                pixels if encoding == "mono8" else pixels.astype(np.float32), encoding, stamp,
-                SL_FRAME_ID), stamp)
-            writer.write(SL_CAMERA_INFO_TOPIC, msgdefs.CAMERA_INFO, convert.camera_info_dict(
-                sl_intrinsics, stamp, SL_FRAME_ID), stamp)
+    return custom
 
+
+def write_hand_eye_view(writer: RecordingWriter, frame: ToFFrame, tcp_to_base_m: np.ndarray,
+                        sl_image: np.ndarray, sl_intrinsics: Intrinsics) -> None:
+    """Append one calibration view to an open writer, all under ``frame.stamp_ns``.
+
+    The SL image and CameraInfo are written first and the ToF frame last: ``write_frame``
+    closes the MCAP chunk, so a view whose TCP pose is readable after a crash also has its SL
+    image.
+
+    Args:
+        writer: an open writer made with :func:`hand_eye_custom_data`.
+        frame: the ToF frame (range mm, amplitude); its ``pose`` is not written.
+        tcp_to_base_m: (4, 4) TCP pose in the base frame, metres.
+        sl_image: (H, W) uint8 (mono8) or float (32FC1) SL intensity image.
+        sl_intrinsics: of the SL image.
+    """
+    pixels = np.asarray(sl_image)
+    encoding = "mono8" if pixels.dtype == np.uint8 else "32FC1"
+    stamp = frame.stamp_ns
+    writer.write(SL_IMAGE_TOPIC, msgdefs.IMAGE, convert.image_dict(
+        pixels if encoding == "mono8" else pixels.astype(np.float32), encoding, stamp,
+        SL_FRAME_ID), stamp)
+    writer.write(SL_CAMERA_INFO_TOPIC, msgdefs.CAMERA_INFO, convert.camera_info_dict(
+        sl_intrinsics, stamp, SL_FRAME_ID), stamp)
+    unposed = ToFFrame(frame.range_mm, frame.amplitude, frame.intrinsics,
+                       mod_freq_hz=frame.mod_freq_hz, stamp_ns=frame.stamp_ns)
+    writer.write_frame(unposed, tcp_pose=tcp_to_base_m)
 
 def _board_of(custom: Mapping[str, str], path: Path) -> CalibrationBoard:
     text = custom.get(KEY_BOARD)
@@ -129,21 +169,60 @@ def _by_stamp(reader: RecordingReader, topics: Mapping[str, str]) -> dict[str, d
     return out
 
 
+def is_session(path: str | Path) -> bool:
+    """Whether ``path`` is a collection session (``part_NNN`` recordings), not a recording."""
+    path = Path(path)
+    if not path.is_dir() or (path / "metadata.yaml").exists() or any(path.glob("*.mcap")):
+        return False
+    return any(p.is_dir() for p in path.glob("part_*"))
+
+
 def read_hand_eye_recording(path: str | Path, *,
                             board: CalibrationBoard | None = None) -> HandEyeRecording:
-    """Read a calibration recording's views.
+    """Read a calibration recording's views, or those of every part of a session.
 
     Args:
-        path: recording directory (or ``.mcap`` file).
+        path: recording directory (or ``.mcap`` file), or a session directory holding
+            ``part_NNN`` recordings (the collector's; parts are merged in stamp order, parts
+            that cannot be read at all are skipped with a warning).
         board: the target, when the recording does not describe it.
 
     Returns:
         The captures, board, and both cameras' intrinsics.
 
     Raises:
-        RecordingError: unreadable recording, no ToF frames, no SL CameraInfo, no board.
+        RecordingError: unreadable recording, no ToF frames, no SL CameraInfo, no board; for
+            a session also parts with different boards or intrinsics.
     """
     path = Path(path)
+    if is_session(path):
+        return _read_session(path, board)
+    return _read_one(path, board)
+
+
+def _read_session(path: Path, board: CalibrationBoard | None) -> HandEyeRecording:
+    parts: list[HandEyeRecording] = []
+    for part in sorted(p for p in path.glob("part_*") if p.is_dir()):
+        try:
+            parts.append(_read_one(part, board))
+        except RecordingError as err:
+            log.warning("skipping part %s: %s", part, err)
+    if not parts:
+        raise RecordingError(f"{path}: no readable calibration recording among its parts")
+    first = parts[0]
+    for part in parts[1:]:
+        if (part.board != first.board or part.tof_intrinsics != first.tof_intrinsics
+                or part.sl_intrinsics != first.sl_intrinsics):
+            raise RecordingError(f"{path}: parts differ in board or camera intrinsics; solve "
+                                 "them separately")
+    captures = sorted((c for p in parts for c in p.captures), key=lambda c: c.stamp_ns)
+    captures = [HandEyeCapture(i, c.stamp_ns, c.tcp_to_base_m, c.tof_amplitude, c.sl_image)
+                for i, c in enumerate(captures)]
+    return HandEyeRecording(captures, first.board, first.tof_intrinsics, first.sl_intrinsics,
+                            first.custom_data)
+
+
+def _read_one(path: Path, board: CalibrationBoard | None) -> HandEyeRecording:
     with RecordingReader(path) as reader:
         custom = reader.custom_data
         board = board or _board_of(custom, path)

@@ -28,6 +28,7 @@ from ..sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M, HOME_JOINTS, forward_kinematic
 from ..sim.viewpoints import ViewpointConfig, reach_camera_pose
 from ..validation import check_array
 from .hand_eye_detect import CalibrationBoard
+from .plan import PlannedView
 
 
 def default_tof_intrinsics() -> Intrinsics:
@@ -184,3 +185,23 @@ def rotation_axis_spread_deg(tcp_to_base_m: list[np.ndarray] | np.ndarray,
     for u, v in combinations(axes, 2):
         spread = max(spread, math.degrees(math.acos(min(1.0, abs(float(u @ v))))))
     return spread
+
+
+def hand_eye_plan_views(board_to_base_m: np.ndarray, n_views: int, seed: int,
+                        hand_eye_guess: np.ndarray = DEFAULT_T_FLANGE_CAMERA_M,
+                        board: CalibrationBoard | None = None) -> list[PlannedView]:
+    """:func:`hand_eye_plan` as a collection plan (the ``collector`` node's ``plan:=hand_eye``).
+
+    Deterministic in ``seed``, so a resumed session plans the same views.
+
+    Args:
+        board_to_base_m: (4, 4) where the board lies, metres.
+        n_views: number of views.
+        seed: seed of the plan's random draws.
+        hand_eye_guess: (4, 4) assumed ToF camera pose in the flange frame, metres.
+        board: the target (default :class:`CalibrationBoard`).
+    """
+    config = HandEyePlanConfig(board=board or CalibrationBoard())
+    rng = np.random.default_rng([seed, 0x4E])
+    tcp_poses = hand_eye_plan(board_to_base_m, n_views, rng, hand_eye_guess, config)
+    return [PlannedView(i, tcp) for i, tcp in enumerate(tcp_poses)]

@@ -6,17 +6,20 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from ..errors import ArmError, CaptureError
-from ..frame import ToFFrame
 from .plan import PlannedView
 
 log = logging.getLogger(__name__)
 
-# capture(after_ns, camera_to_base_m) -> a frame stamped after ``after_ns`` at that pose
-CaptureFunction = Callable[[int, np.ndarray], ToFFrame]
+# capture(after_ns, camera_to_base_m) -> a frame stamped after ``after_ns`` at that pose (a
+# ToFFrame, or whatever ``write_view`` takes, e.g. a ToF frame with its SL image)
+CaptureFunction = Callable[[int, np.ndarray], Any]
+# write_view(captured, tcp_to_base_m) appends one captured view to the recording
+WriteFunction = Callable[[Any, np.ndarray], None]
 
 
 @dataclass
@@ -37,7 +40,8 @@ def run_plan(pending: list[PlannedView], arm, capture: CaptureFunction, writer,
              hand_eye_m: np.ndarray, *, settle_s: float = 0.5, speed: float = 0.1,
              accel: float = 0.5, publish_pose: Callable[[np.ndarray], None] | None = None,
              should_stop: Callable[[], bool] = lambda: False,
-             on_view: Callable[[int, int], None] | None = None) -> RunResult:
+             on_view: Callable[[int, int], None] | None = None,
+             write_view: WriteFunction | None = None) -> RunResult:
     """Visit ``pending`` views in order and record one frame at each.
 
     An arm failure (disconnect, protective stop, timeout) ends the run: everything recorded so
@@ -54,6 +58,8 @@ def run_plan(pending: list[PlannedView], arm, capture: CaptureFunction, writer,
         publish_pose: called with the actual TCP pose after each move (ROS: /arm/tcp_pose).
         should_stop: polled between views; True ends the run cleanly.
         on_view: progress callback ``(views done in this run, views pending)``.
+        write_view: appends a captured view with its TCP pose; default
+            ``writer.write_frame(frame, tcp_pose=tcp, hand_eye=hand_eye_m)``.
     """
     result = RunResult()
     for view in pending:
@@ -73,7 +79,10 @@ def run_plan(pending: list[PlannedView], arm, capture: CaptureFunction, writer,
         if frame is None:
             result.skipped.append(view.index)
             continue
-        writer.write_frame(frame, tcp_pose=tcp, hand_eye=hand_eye_m)
+        if write_view is None:
+            writer.write_frame(frame, tcp_pose=tcp, hand_eye=hand_eye_m)
+        else:
+            write_view(frame, tcp)
         result.recorded.append(view.index)
         if on_view is not None:
             on_view(len(result.recorded), len(pending))
@@ -81,7 +90,7 @@ def run_plan(pending: list[PlannedView], arm, capture: CaptureFunction, writer,
 
 
 def _capture_with_retry(capture: CaptureFunction, camera_to_base_m: np.ndarray,
-                        index: int) -> ToFFrame | None:
+                        index: int) -> Any:
     for attempt in (1, 2):
         after_ns = time.time_ns()
         try:

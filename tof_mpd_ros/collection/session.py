@@ -71,3 +71,50 @@ def completed_views(session: str | Path, plan: list[PlannedView],
                 counts[view.index] += 1
                 break
     return counts
+
+
+# ------------------------------------------------------------------ calibration sessions
+# A hand-eye calibration session holds calibration recordings (.hand_eye_io): their frames
+# carry the TCP pose but no camera pose (the hand-eye transform is what they are for), so its
+# views are matched on the TCP pose.
+
+
+def is_calibration_part(part: str | Path) -> bool | None:
+    """Whether a part is a hand-eye calibration recording; None if it cannot be read."""
+    from ..recordings import RecordingReader
+    from .hand_eye_io import KEY_BOARD
+
+    try:
+        with RecordingReader(part) as reader:
+            return KEY_BOARD in reader.custom_data
+    except RecordingError:
+        return None
+
+
+def parts_of_other_kind(session: str | Path, calibration: bool) -> list[Path]:
+    """Readable parts that are not of the wanted kind (calibration or ordinary recordings)."""
+    return [p for p in parts(session) if is_calibration_part(p) not in (None, calibration)]
+
+
+def completed_calibration_views(session: str | Path,
+                                plan: list[PlannedView]) -> dict[int, int]:
+    """How many complete calibration views (TCP pose, ToF amplitude and SL image) the session
+    holds for each planned view index, matched on the TCP pose."""
+    from .hand_eye_io import read_hand_eye_recording
+
+    counts = {view.index: 0 for view in plan}
+    for part in parts(session):
+        try:
+            captures = read_hand_eye_recording(part).captures
+        except RecordingError as err:
+            log.warning("skipping unreadable part %s: %s", part, err)
+            continue
+        for capture in captures:
+            if capture.tcp_to_base_m is None or capture.sl_image is None or \
+                    capture.tof_amplitude is None:
+                continue
+            for view in plan:
+                if matches(capture.tcp_to_base_m, view.tcp_to_base_m):
+                    counts[view.index] += 1
+                    break
+    return counts

@@ -10,11 +10,24 @@
 With ``autostart`` (default) the node configures and activates itself; with ``exit_when_done`` it
 shuts down once the plan is finished or the arm failed (the session can be resumed by running
 the collector again).
+
+``plan:=hand_eye`` records a hand-eye calibration session instead: the arm visits
+:func:`~tof_mpd_ros.collection.hand_eye_plan.hand_eye_plan_views` over the board at
+``board_pose``, and each view (ToF depth + amplitude + CameraInfo and the SL camera's intensity
+image + CameraInfo, synchronised, with the TCP pose) is written as
+:mod:`~tof_mpd_ros.collection.hand_eye_io` describes, so ``tof-mpd calibrate hand-eye SESSION``
+(or ``SESSION/part_000``) solves it. Such a session resumes like any other (views are matched on
+the TCP pose). With ``hand_eye_file`` (the JSON of ``tof-mpd calibrate hand-eye -o``) the
+calibrated camera-to-flange replaces the ``hand_eye`` parameter, for the plan and in every
+recorded frame.
 """
 
 from __future__ import annotations
 
+import json
 import threading
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +39,17 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from ..arm.isolated import IsolatedArm
 from ..arm.ur_pose import pose_vector_to_matrix
+from ..camera import Intrinsics
 from ..collection import session
+from ..collection.hand_eye_detect import CalibrationBoard
+from ..collection.hand_eye_io import (
+    KEY_CALIBRATION_FILE,
+    KEY_SL_TO_TOF,
+    hand_eye_custom_data,
+    load_hand_eye_json,
+    write_hand_eye_view,
+)
+from ..collection.hand_eye_plan import hand_eye_plan_views
 from ..collection.plan import PlannedView, load_plan, sim_plan
 from ..collection.runner import RunResult, run_plan
 from ..errors import CaptureError, TofMpdError
@@ -43,8 +66,12 @@ PARAMETERS = (
     P("robot_ip", "192.168.1.10", "UR controller address (ur_rtde only).", read_only=True),
     P("session_path", "recordings/session", "Session directory; parts part_NNN are "
       "recordings. Existing parts are kept and the plan resumes.", read_only=True),
+    P("plan", "scene", "scene: record the scene's viewpoint plan (or plan_file); hand_eye: "
+      "record a hand-eye calibration session over the board at board_pose (ToF + SL images, "
+      "for `tof-mpd calibrate hand-eye`).", choices=("scene", "hand_eye"), read_only=True),
     P("plan_file", "", "YAML plan (views: [[x y z rx ry rz], ...] TCP poses, m/rad); empty = "
-      "the simulated scene's plan.", read_only=True),
+      "the simulated scene's plan (plan scene) or the hand-eye plan (plan hand_eye).",
+      read_only=True),
     P("seed", 0, "Simulated scene seed (same as the sim_cell node's).", read_only=True),
     P("split", "test", "Simulated scene's object split.", choices=("train", "test"),
       read_only=True),
@@ -52,7 +79,21 @@ PARAMETERS = (
     P("views", 18, "Views of the simulated plan to visit.", min_value=1, max_value=18,
       read_only=True),
     P("hand_eye", [0.0, 0.0, 0.06, 0.0, 0.0, 0.0], "Camera pose in the flange frame, UR pose "
-      "vector [x y z rx ry rz] (m, rad).", read_only=True),
+      "vector [x y z rx ry rz] (m, rad); used when hand_eye_file is empty.", read_only=True),
+    P("hand_eye_file", "", "JSON result of `tof-mpd calibrate hand-eye -o`; when set, its "
+      "camera_to_flange replaces hand_eye for the plan and in every recorded frame.",
+      read_only=True),
+    P("hand_eye_views", 12, "Views of the hand-eye calibration plan.", min_value=4,
+      max_value=60, read_only=True),
+    P("board_pose", [0.45, 0.0, 0.0, 3.141592653589793, 0.0, 0.0], "Calibration board frame in "
+      "the base frame (UR pose vector, m, rad; z into the table), for plan hand_eye.",
+      read_only=True),
+    P("board_cols", 9, "Squares across the calibration board (one of cols, rows odd).",
+      min_value=3, max_value=50, read_only=True),
+    P("board_rows", 6, "Squares down the calibration board.", min_value=3, max_value=50,
+      read_only=True),
+    P("board_square_mm", 20.0, "Side of a calibration board square, mm.", min_value=1.0,
+      max_value=500.0, read_only=True),
     P("speed", 0.1, "TCP speed of moveL, m/s.", min_value=0.001, max_value=1.0),
     P("accel", 0.5, "TCP acceleration of moveL, m/s^2.", min_value=0.01, max_value=5.0),
     P("settle_time_s", 0.5, "Wait after a move before capturing.", min_value=0.0,
@@ -71,6 +112,10 @@ PARAMETERS = (
     P("camera_info_topic", "/tof/camera_info", "ToF CameraInfo.", read_only=True),
     P("reference_topic", "/sl/depth/image_raw", "Structured-light reference in the ToF frame "
       "(z-depth).", read_only=True),
+    P("sl_image_topic", "/sl/image_raw", "SL camera intensity image (plan hand_eye).",
+      read_only=True),
+    P("sl_camera_info_topic", "/sl/camera_info", "SL camera CameraInfo (plan hand_eye).",
+      read_only=True),
     P("tcp_pose_topic", "/arm/tcp_pose", "Published TCP pose after each move (base frame, m).",
       read_only=True),
     P("autostart", True, "Configure and activate at start-up.", read_only=True),
@@ -80,36 +125,78 @@ PARAMETERS = (
 
 
 class TopicCapture:
-    """Latest messages per topic, and a blocking wait for a set stamped after a time."""
+    """Latest messages per topic, and a blocking wait for a set stamped after a time.
 
-    def __init__(self, tolerance_ns: int, require_reference: bool) -> None:
+    Args:
+        tolerance_ns: largest stamp difference between the ``required`` messages and the depth.
+        required: the keys a set needs (``depth`` among them).
+    """
+
+    def __init__(self, tolerance_ns: int, required: tuple[str, ...]) -> None:
         self._cond = threading.Condition()
         self._latest: dict[str, object] = {}
         self.tolerance_ns = tolerance_ns
-        self.require_reference = require_reference
+        self.required = required
 
     def put(self, key: str, msg: object) -> None:
+        """Store the newest message of ``key`` and wake waiters."""
         with self._cond:
             self._latest[key] = msg
             self._cond.notify_all()
 
-    def wait(self, after_ns: int, camera_to_base_m: np.ndarray, timeout_s: float) -> ToFFrame:
+    def wait_messages(self, after_ns: int, timeout_s: float) -> dict[str, object]:
+        """The latest messages once the required ones are synchronised and newer than
+        ``after_ns``.
+
+        Raises:
+            CaptureError: no such set within ``timeout_s``.
+        """
         with self._cond:
             if not self._cond.wait_for(lambda: self._ready(after_ns), timeout_s):
                 have = sorted(k for k, m in self._latest.items() if stamp_ns(m) > after_ns)
                 raise CaptureError(f"no synchronised set within {timeout_s:.1f} s "
                                    f"(fresh: {have or 'nothing'})")
-            latest = dict(self._latest)
-        return _frame(latest, camera_to_base_m)
+            return dict(self._latest)
+
+    def wait(self, after_ns: int, camera_to_base_m: np.ndarray, timeout_s: float) -> ToFFrame:
+        """A ToF frame (with the reference when present) at ``camera_to_base_m``."""
+        return _frame(self.wait_messages(after_ns, timeout_s), camera_to_base_m)
+
+    def wait_hand_eye(self, after_ns: int, timeout_s: float) -> HandEyeView:
+        """A calibration view: the ToF frame (no pose) and the SL image of the same instant."""
+        return _hand_eye_view(self.wait_messages(after_ns, timeout_s))
 
     def _ready(self, after_ns: int) -> bool:
-        keys = ("depth", "amplitude", "info") + (("reference",) if self.require_reference
-                                                  else ())
-        if any(k not in self._latest for k in keys):
+        if any(k not in self._latest for k in self.required):
             return False
-        stamps = [stamp_ns(self._latest[k]) for k in keys]
+        stamps = [stamp_ns(self._latest[k]) for k in self.required]
         depth = stamp_ns(self._latest["depth"])
         return depth > after_ns and all(abs(s - depth) <= self.tolerance_ns for s in stamps)
+
+
+@dataclass(frozen=True, eq=False)
+class HandEyeView:
+    """One captured calibration view.
+
+    Attributes:
+        frame: the ToF frame (radial range mm, amplitude; no pose, no reference).
+        sl_image: (H, W) SL intensity image (uint8 for mono8, else float32).
+        sl_intrinsics: of the SL image.
+    """
+
+    frame: ToFFrame
+    sl_image: np.ndarray
+    sl_intrinsics: Intrinsics
+
+
+def _hand_eye_view(latest: dict[str, object]) -> HandEyeView:
+    tof = {k: latest[k] for k in ("depth", "amplitude", "info")}
+    image = latest["sl_image"]
+    pixels = image_to_array(image.encoding, image.height, image.width, image.step,
+                            bool(image.is_bigendian), image.data)
+    if pixels.dtype != np.uint8:
+        pixels = pixels.astype(np.float32)
+    return HandEyeView(_frame(tof, None), pixels, intrinsics_of(latest["sl_info"]))
 
 
 def _decode_mm(msg: Image) -> np.ndarray:
@@ -118,7 +205,7 @@ def _decode_mm(msg: Image) -> np.ndarray:
     return depth_to_mm(pixels, msg.encoding)
 
 
-def _frame(latest: dict[str, object], camera_to_base_m: np.ndarray) -> ToFFrame:
+def _frame(latest: dict[str, object], camera_to_base_m: np.ndarray | None) -> ToFFrame:
     """Messages -> a ToFFrame holding radial ranges (the topics hold z-depth)."""
     depth, amp, info = latest["depth"], latest["amplitude"], latest["info"]
     intr = intrinsics_of(info)
@@ -138,12 +225,20 @@ class CollectorNode(LifecycleNode):
         self.params = declare(self, PARAMETERS)
         p = self.params
         self.hand_eye_m = pose_vector_to_matrix(np.asarray(p["hand_eye"], dtype=np.float64))
-        self.capture = TopicCapture(int(p["sync_tolerance_s"] * 1e9), p["require_reference"])
+        self.calibration = p["plan"] == "hand_eye"
+        topics = [("depth", "depth_topic", Image), ("amplitude", "amplitude_topic", Image),
+                  ("info", "camera_info_topic", CameraInfo)]
+        required = ["depth", "amplitude", "info"]
+        if self.calibration:
+            topics += [("sl_image", "sl_image_topic", Image),
+                       ("sl_info", "sl_camera_info_topic", CameraInfo)]
+            required += ["sl_image", "sl_info"]
+        else:
+            topics.append(("reference", "reference_topic", Image))
+            required += ["reference"] if p["require_reference"] else []
+        self.capture = TopicCapture(int(p["sync_tolerance_s"] * 1e9), tuple(required))
         qos = qos_profile_sensor_data
-        for key, topic, kind in (("depth", "depth_topic", Image),
-                                 ("amplitude", "amplitude_topic", Image),
-                                 ("info", "camera_info_topic", CameraInfo),
-                                 ("reference", "reference_topic", Image)):
+        for key, topic, kind in topics:
             self.create_subscription(kind, p[topic], lambda m, k=key: self.capture.put(k, m),
                                      qos)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
@@ -173,9 +268,16 @@ class CollectorNode(LifecycleNode):
     def on_configure(self, state: State) -> TransitionCallbackReturn:
         p = self.params
         try:
-            plan = (load_plan(p["plan_file"]) if p["plan_file"]
-                    else sim_plan(p["seed"], p["split"], p["scene"], p["views"], self.hand_eye_m))
-            done = session.completed_views(p["session_path"], plan, self.hand_eye_m)
+            custom = self._load_hand_eye_file()
+            plan = self._plan()
+            other = session.parts_of_other_kind(p["session_path"], self.calibration)
+            if other:
+                kind = "ordinary recordings" if self.calibration else "hand-eye calibrations"
+                raise TofMpdError(f"{p['session_path']} holds {kind} ({other[0].name}); use "
+                                  f"another session_path for plan {p['plan']}")
+            done = (session.completed_calibration_views(p["session_path"], plan)
+                    if self.calibration
+                    else session.completed_views(p["session_path"], plan, self.hand_eye_m))
             self.pending = [v for v in plan if done[v.index] == 0]
             self.get_logger().info(f"plan: {len(plan)} views, {len(plan) - len(self.pending)} "
                                    f"already recorded in {p['session_path']}")
@@ -187,12 +289,42 @@ class CollectorNode(LifecycleNode):
             from ..recordings import RecordingWriter
 
             Path(p["session_path"]).mkdir(parents=True, exist_ok=True)
-            self.writer = RecordingWriter(session.next_part(p["session_path"])).open()
+            if self.calibration:
+                custom.update(hand_eye_custom_data(self._board()))
+            self.writer = RecordingWriter(session.next_part(p["session_path"]),
+                                          custom_data=custom).open()
         except TofMpdError as err:
             self.get_logger().error(f"cannot configure: {err}")
             self._close()
             return TransitionCallbackReturn.FAILURE
         return TransitionCallbackReturn.SUCCESS
+
+    def _load_hand_eye_file(self) -> dict[str, str]:
+        """Take camera-to-flange from ``hand_eye_file`` if set; the recording's custom_data."""
+        path = self.params["hand_eye_file"]
+        if not path:
+            return {}
+        camera_to_flange, sl_to_tof = load_hand_eye_json(path)
+        self.hand_eye_m = camera_to_flange
+        self.get_logger().info(f"hand-eye from {path}: camera at "
+                               f"{np.round(camera_to_flange[:3, 3] * 1000.0, 2).tolist()} mm "
+                               "in the flange frame")
+        return {KEY_CALIBRATION_FILE: str(Path(path).resolve()),
+                KEY_SL_TO_TOF: json.dumps(sl_to_tof.tolist())}
+
+    def _board(self) -> CalibrationBoard:
+        p = self.params
+        return CalibrationBoard(p["board_cols"], p["board_rows"], p["board_square_mm"])
+
+    def _plan(self) -> list[PlannedView]:
+        p = self.params
+        if p["plan_file"]:
+            return load_plan(p["plan_file"])
+        if self.calibration:
+            board_m = pose_vector_to_matrix(np.asarray(p["board_pose"], dtype=np.float64))
+            return hand_eye_plan_views(board_m, p["hand_eye_views"], p["seed"], self.hand_eye_m,
+                                       self._board())
+        return sim_plan(p["seed"], p["split"], p["scene"], p["views"], self.hand_eye_m)
 
     def on_activate(self, state: State) -> TransitionCallbackReturn:
         self._stop.clear()
@@ -218,23 +350,54 @@ class CollectorNode(LifecycleNode):
     # -- the plan (worker thread) --------------------------------------------------------
     def _run(self) -> None:
         p = self.params
+        if self.pending and p["arm_backend"] == "sim":
+            self._wait_for_arm_follower(p["connect_timeout_s"])
         if self.pending:
+            timeout = p["capture_timeout_s"]
+            if self.calibration:
+                def capture(after: int, pose: np.ndarray) -> HandEyeView:
+                    return self.capture.wait_hand_eye(after, timeout)
+
+                def write(view: HandEyeView, tcp: np.ndarray) -> None:
+                    write_hand_eye_view(self.writer, view.frame, tcp, view.sl_image,
+                                        view.sl_intrinsics)
+            else:
+                def capture(after: int, pose: np.ndarray) -> ToFFrame:
+                    return self.capture.wait(after, pose, timeout)
+                write = None
             self.result = run_plan(
-                self.pending, self.arm,
-                lambda after, pose: self.capture.wait(after, pose, p["capture_timeout_s"]),
-                self.writer, self.hand_eye_m, settle_s=p["settle_time_s"], speed=p["speed"],
-                accel=p["accel"], publish_pose=self._publish_pose,
-                should_stop=self._stop.is_set,
+                self.pending, self.arm, capture, self.writer, self.hand_eye_m,
+                settle_s=p["settle_time_s"], speed=p["speed"], accel=p["accel"],
+                publish_pose=self._publish_pose, should_stop=self._stop.is_set,
                 on_view=lambda done, total: self.get_logger().info(
-                    f"recorded {done}/{total} views"))
+                    f"recorded {done}/{total} views"), write_view=write)
             r = self.result
             summary = (f"recorded views {r.recorded}; skipped {r.skipped}" +
                        (f"; stopped at view {r.failed_view}: {r.error}" if not r.ok else ""))
             (self.get_logger().info if r.ok and not r.skipped else
              self.get_logger().error)(summary)
+            if self.calibration and r.ok:
+                self.get_logger().info(f"solve with: tof-mpd calibrate hand-eye "
+                                       f"{p['session_path']} -o hand_eye.json")
         self._close()
         if p["exit_when_done"]:
             rclpy.try_shutdown()
+
+    def _wait_for_arm_follower(self, timeout_s: float) -> None:
+        """Wait until something (the sim_cell node) subscribes to the TCP pose.
+
+        The simulated arm is seen only through a simulated camera that renders from the
+        published pose. Until discovery has matched that subscriber, a first pose would reach
+        it late, after frames rendered elsewhere were stamped as if taken at that pose.
+        """
+        deadline = time.monotonic() + timeout_s
+        while self.pub_pose.get_subscription_count() == 0 and not self._stop.is_set():
+            if time.monotonic() > deadline:
+                self.get_logger().warn(f"nothing subscribes to {self.params['tcp_pose_topic']} "
+                                       f"after {timeout_s:.1f} s: frames may not show the "
+                                       "simulated arm's pose")
+                return
+            time.sleep(0.05)
 
     def _publish_pose(self, tcp_m: np.ndarray) -> None:
         msg = PoseStamped(pose=pose_message(tcp_m))

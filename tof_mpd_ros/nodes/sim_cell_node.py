@@ -2,10 +2,19 @@
 
 Frames are rendered on a worker thread (a multipath frame takes about a second) and published by
 a timer at ``rate_hz`` with fresh stamps. Without an arm, the node cycles through frames of a
-viewpoint plan rendered at start-up; when the arm's TCP pose arrives on ``tcp_pose_topic`` (the
+viewpoint plan rendered at start-up (it stops as soon as a TCP pose publisher is discovered, so
+no frame from elsewhere is stamped while the arm's first pose is on its way); when the arm's TCP
+pose arrives on ``tcp_pose_topic`` (the
 collector publishes it while it drives the simulated or real arm), the node renders from that
 pose and publishes nothing stale in between, so every frame stamped after a pose message was
 rendered at that pose.
+
+With ``target:=hand_eye_board`` the scene is replaced by the hand-eye calibration board lying
+on the table at ``board_pose`` (:mod:`~tof_mpd_ros.collection.hand_eye_sim`): the ToF frames
+show the board through the full ToF physics (no structured-light reference), and the SL
+camera's intensity image of the board is published on ``sl_image_topic`` with its CameraInfo,
+rendered from the SL camera pose (``hand_eye`` then ``sl_to_tof``) with the same stamp. Before
+an arm pose arrives the node cycles through views of the hand-eye plan.
 """
 
 from __future__ import annotations
@@ -20,12 +29,16 @@ from sensor_msgs.msg import CameraInfo, Image
 
 from ..arm.ur_pose import pose_vector_to_matrix
 from ..camera import Intrinsics
+from ..collection.hand_eye_detect import CalibrationBoard
+from ..collection.hand_eye_plan import default_sl_intrinsics, hand_eye_plan_views
+from ..collection.hand_eye_sim import render_sl_image, simulate_tof_capture
 from ..frame import ToFFrame
 from ..image_encoding import mm_to_depth
 from ..sim.cell import CameraModel, SimCell
 from ..sim.dataset import scene_rng
-from ..sim.poses import pose_m_to_mm
+from ..sim.poses import invert_pose, pose_m_to_mm
 from ..sim.scene import make_scene
+from ..sim.structured_light import StructuredLightConfig
 from ..sim.viewpoints import ViewpointConfig, plan_viewpoints
 from .parameters import ParameterSpec as P
 from .parameters import declare
@@ -39,8 +52,9 @@ PARAMETERS = (
       choices=("train", "test"), read_only=True),
     P("scene", 0, "Scene index (with seed and split, the same scene as `tof-mpd sim dataset`).",
       min_value=0, max_value=100000, read_only=True),
-    P("views", 3, "Plan views rendered at start-up and cycled until an arm pose arrives.",
-      min_value=1, max_value=18, read_only=True),
+    P("views", 3, "Views rendered at start-up (the scene's plan, or the hand-eye plan for "
+      "target hand_eye_board) and cycled until an arm appears.", min_value=1, max_value=18,
+      read_only=True),
     P("follow_arm", True, "Render from the TCP pose on tcp_pose_topic when it arrives."),
     P("tcp_pose_topic", "/arm/tcp_pose", "TCP (flange) pose in the base frame, metres.",
       read_only=True),
@@ -59,6 +73,25 @@ PARAMETERS = (
     P("crop_height", 140, "Height of the published ToF image.", min_value=8, max_value=216,
       read_only=True),
     P("frame_id", "tof_optical_frame", "frame_id of the published images.", read_only=True),
+    P("target", "scene", "scene: the simulated scene; hand_eye_board: the hand-eye calibration "
+      "board on the table, plus the SL camera's intensity image.",
+      choices=("scene", "hand_eye_board"), read_only=True),
+    P("sl_to_tof", [-0.05, 0.0, 0.0, 0.0, 0.0, 0.0], "True SL camera pose in the ToF optical "
+      "frame as a UR pose vector (m, axis-angle); used by the reference and the SL image.",
+      read_only=True),
+    P("board_pose", [0.45, 0.0, 0.0, 3.141592653589793, 0.0, 0.0], "Board frame in the base "
+      "frame (UR pose vector, m, rad; z into the table) for target hand_eye_board.",
+      read_only=True),
+    P("board_cols", 9, "Squares across the board (one of cols, rows odd).", min_value=3,
+      max_value=50, read_only=True),
+    P("board_rows", 6, "Squares down the board.", min_value=3, max_value=50, read_only=True),
+    P("board_square_mm", 20.0, "Side of a board square, mm.", min_value=1.0, max_value=500.0,
+      read_only=True),
+    P("sl_image_topic", "/sl/image_raw", "SL camera intensity image, mono8 (target "
+      "hand_eye_board).", read_only=True),
+    P("sl_camera_info_topic", "/sl/camera_info", "SL camera CameraInfo (target hand_eye_board).",
+      read_only=True),
+    P("sl_frame_id", "sl_optical_frame", "frame_id of the SL camera image.", read_only=True),
 )
 
 
@@ -67,17 +100,45 @@ class SimCellNode(Node):
         super().__init__("sim_cell")
         self.params = declare(self, PARAMETERS)
         p = self.params
-        self.cell = SimCell(camera=CameraModel(crop=(p["crop_width"], p["crop_height"])))
+        sl_to_tof_m = pose_vector_to_matrix(np.asarray(p["sl_to_tof"], dtype=np.float64))
+        self.cell = SimCell(camera=CameraModel(crop=(p["crop_width"], p["crop_height"])),
+                            structured_light=StructuredLightConfig(
+                                sl_to_tof_mm=pose_m_to_mm(sl_to_tof_m)))
         self.rng = np.random.default_rng([p["seed"], 7])
-        scene_random = scene_rng(p["seed"], p["split"], p["scene"])
-        self.scene = make_scene(p["split"], scene_random)
-        self.plan = plan_viewpoints(self.scene, scene_random, ViewpointConfig())
         self.hand_eye_m = pose_vector_to_matrix(np.asarray(p["hand_eye"], dtype=np.float64))
+        self.board_mode = p["target"] == "hand_eye_board"
+        if self.board_mode:
+            self.board = CalibrationBoard(p["board_cols"], p["board_rows"],
+                                          p["board_square_mm"])
+            board_m = pose_vector_to_matrix(np.asarray(p["board_pose"], dtype=np.float64))
+            self.board_to_base_mm = pose_m_to_mm(board_m)
+            self.sl_intrinsics = default_sl_intrinsics()
+            views = hand_eye_plan_views(board_m, max(3, p["views"]), p["seed"],
+                                        self.hand_eye_m, self.board)
+            self.cycle_poses = [pose_m_to_mm(v.camera_to_base_m(self.hand_eye_m))
+                                for v in views[:p["views"]]]
+            what = (f"hand-eye board {self.board.n_cols}x{self.board.n_rows} x "
+                    f"{self.board.square_mm:g} mm")
+        else:
+            scene_random = scene_rng(p["seed"], p["split"], p["scene"])
+            self.scene = make_scene(p["split"], scene_random)
+            plan = plan_viewpoints(self.scene, scene_random, ViewpointConfig())
+            self.cycle_poses = [v.camera_to_base_mm for v in plan.viewpoints[:p["views"]]]
+            what = (f"{p['split']} scene {p['scene']} (seed {p['seed']}), "
+                    f"{len(self.scene.objects)} objects")
         qos = qos_profile_sensor_data
-        self.pub_depth = self.create_publisher(Image, p["depth_topic"], qos)
-        self.pub_amplitude = self.create_publisher(Image, p["amplitude_topic"], qos)
-        self.pub_info = self.create_publisher(CameraInfo, p["camera_info_topic"], qos)
-        self.pub_reference = self.create_publisher(Image, p["reference_topic"], qos)
+        self.publishers_by_key = {
+            "depth": self.create_publisher(Image, p["depth_topic"], qos),
+            "amplitude": self.create_publisher(Image, p["amplitude_topic"], qos),
+            "info": self.create_publisher(CameraInfo, p["camera_info_topic"], qos)}
+        if self.board_mode:
+            self.publishers_by_key["sl_image"] = self.create_publisher(
+                Image, p["sl_image_topic"], qos)
+            self.publishers_by_key["sl_info"] = self.create_publisher(
+                CameraInfo, p["sl_camera_info_topic"], qos)
+        else:
+            self.publishers_by_key["reference"] = self.create_publisher(
+                Image, p["reference_topic"], qos)
         self._lock = threading.Lock()
         self._cycle: list[dict[str, Image | CameraInfo]] = []
         self._current: dict[str, Image | CameraInfo] | None = None
@@ -91,16 +152,14 @@ class SimCellNode(Node):
         self._worker = threading.Thread(target=self._render_loop, daemon=True)
         self._worker.start()
         self.create_timer(1.0 / p["rate_hz"], self._publish)
-        self.get_logger().info(f"simulated cell: {p['split']} scene {p['scene']} (seed "
-                               f"{p['seed']}), {len(self.scene.objects)} objects, publishing "
-                               f"at {p['rate_hz']} Hz")
+        self.get_logger().info(f"simulated cell: {what}, publishing at {p['rate_hz']} Hz")
 
     # -- rendering (worker thread) -------------------------------------------------------
     def _render_loop(self) -> None:
-        for view in self.plan.viewpoints[:self.params["views"]]:
+        for camera_to_base_mm in self.cycle_poses:
             if self._stop.is_set():
                 return
-            messages = self._render(view.camera_to_base_mm)
+            messages = self._render(camera_to_base_mm)
             with self._lock:
                 self._cycle.append(messages)
         while not self._stop.is_set():
@@ -116,10 +175,25 @@ class SimCellNode(Node):
                     self._rendered_pose_mm = pose
 
     def _render(self, camera_to_base_mm: np.ndarray) -> dict[str, Image | CameraInfo]:
+        self.frames_rendered += 1
+        if self.board_mode:
+            return self._render_board(camera_to_base_mm)
         frame = self.cell.capture(self.scene, camera_to_base_mm, self.rng,
                                   with_reference=self.params["publish_reference"])
-        self.frames_rendered += 1
         return self._messages(frame)
+
+    def _render_board(self, camera_to_base_mm: np.ndarray) -> dict[str, Image | CameraInfo]:
+        """The board in the ToF camera (full physics) and in the SL camera (intensity)."""
+        board_in_tof = invert_pose(camera_to_base_mm) @ self.board_to_base_mm
+        frame = simulate_tof_capture(self.cell, self.board, board_in_tof, self.rng)
+        board_in_sl = invert_pose(self.cell.structured_light.sl_to_tof_mm) @ board_in_tof
+        image = render_sl_image(self.board, board_in_sl, self.sl_intrinsics, self.rng,
+                                supersample=2)
+        out = self._messages(frame)
+        fid = self.params["sl_frame_id"]
+        out["sl_image"] = image_message(image, "mono8", fid)
+        out["sl_info"] = camera_info_message(self.sl_intrinsics, fid)
+        return out
 
     def _messages(self, frame: ToFFrame) -> dict[str, Image | CameraInfo]:
         intr: Intrinsics = frame.intrinsics
@@ -147,10 +221,11 @@ class SimCellNode(Node):
             self._render_request.set()
 
     def _publish(self) -> None:
+        arm_present = self._arm_present()
         with self._lock:
             if self._pending_pose_mm is not None:
                 messages = self._current
-            elif self._cycle:
+            elif self._cycle and not arm_present:
                 messages = self._cycle[self._tick % len(self._cycle)]
             else:
                 messages = None
@@ -158,11 +233,15 @@ class SimCellNode(Node):
         if messages is None:
             return
         stamp = self.get_clock().now().to_msg()
-        for key, publisher in (("depth", self.pub_depth), ("amplitude", self.pub_amplitude),
-                               ("info", self.pub_info), ("reference", self.pub_reference)):
+        for key, publisher in self.publishers_by_key.items():
             if key in messages:
                 messages[key].header.stamp = stamp
                 publisher.publish(messages[key])
+
+    def _arm_present(self) -> bool:
+        """Whether this node follows an arm whose pose publisher has been discovered."""
+        return bool(self.params["follow_arm"]) and \
+            self.count_publishers(self.params["tcp_pose_topic"]) > 0
 
     def destroy_node(self) -> None:
         self._stop.set()
