@@ -86,3 +86,12 @@ def test_kill_9_mid_plan_then_resume_records_every_view_exactly_once(sim_cell,
     plan = sim_plan(0, "test", 0, views, DEFAULT_T_FLANGE_CAMERA_M)
     counts = session.completed_views(tmp_path / "s", plan, DEFAULT_T_FLANGE_CAMERA_M)
     assert counts == {i: 1 for i in range(views)}, counts
+
+
+def test_collector_that_cannot_configure_exits_non_zero(tmp_path: Path) -> None:
+    (tmp_path / "plan.yaml").write_text("views: [[1, 2, 3]]")  # not 6-vectors
+    log = tmp_path / "collector.log"
+    collector = start_node("collector", {**COLLECTOR, "session_path": str(tmp_path / "s"),
+                                         "plan_file": str(tmp_path / "plan.yaml")}, DOMAIN, log)
+    assert collector.wait(120) == 2
+    assert "6-vectors" in log.read_text()

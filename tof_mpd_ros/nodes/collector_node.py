@@ -124,6 +124,12 @@ PARAMETERS = (
 )
 
 
+# Process exit codes (``exit_when_done``): the plan finished, could not start, or stopped early
+# (arm failure or skipped views; run the collector again to resume).
+EXIT_CONFIGURE_FAILED = 2
+EXIT_PLAN_INCOMPLETE = 3
+
+
 class TopicCapture:
     """Latest messages per topic, and a blocking wait for a set stamped after a time.
 
@@ -254,6 +260,7 @@ class CollectorNode(LifecycleNode):
         if p["autostart"]:
             self.create_timer(0.0, self._autostart_once)
         self._autostarted = False
+        self.exit_code = 0
 
     def _autostart_once(self) -> None:
         if self._autostarted:
@@ -262,6 +269,7 @@ class CollectorNode(LifecycleNode):
         if self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
             self.trigger_activate()
         elif self.params["exit_when_done"]:
+            self.exit_code = EXIT_CONFIGURE_FAILED
             rclpy.try_shutdown()
 
     # -- lifecycle -----------------------------------------------------------------------
@@ -376,6 +384,8 @@ class CollectorNode(LifecycleNode):
                        (f"; stopped at view {r.failed_view}: {r.error}" if not r.ok else ""))
             (self.get_logger().info if r.ok and not r.skipped else
              self.get_logger().error)(summary)
+            if not r.ok or r.skipped:
+                self.exit_code = EXIT_PLAN_INCOMPLETE
             if self.calibration and r.ok:
                 self.get_logger().info(f"solve with: tof-mpd calibrate hand-eye "
                                        f"{p['session_path']} -o hand_eye.json")

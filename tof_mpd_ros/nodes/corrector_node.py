@@ -21,7 +21,13 @@ import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
 from sensor_msgs.msg import CameraInfo, Image
 
 from ..camera import Intrinsics
@@ -61,6 +67,16 @@ PARAMETERS = (
       choices=("input", "32FC1", "16UC1")),
     P("device", "cpu", "Torch device for the networks (cpu, cuda, cuda:0...).",
       read_only=True),
+    P("input_reliability", "best_effort", "QoS reliability of the three input subscriptions: "
+      "best_effort (sensor-data QoS) or reliable (needs reliable publishers; use it for large "
+      "frames, whose fragments best effort may lose).", choices=("best_effort", "reliable"),
+      read_only=True),
+    P("input_depth", 5, "History depth of the three input subscriptions (sensor-data QoS: 5); "
+      "deeper rides out longer stalls of this process at the cost of memory.", min_value=1,
+      max_value=1000, read_only=True),
+    P("threads", 1, "CPU threads for the networks (torch) and the geodesic filter (numba); "
+      "0 = the libraries' default, one per core. One leaves a core to the executor.",
+      min_value=0, max_value=256, read_only=True),
     P("sync_tolerance_s", 0.005, "Largest stamp difference at which depth and amplitude "
       "pair.", min_value=0.0, max_value=1.0),
     P("queue_size", 2, "Pairs waiting for the worker; the oldest is dropped when full.",
@@ -185,7 +201,8 @@ class CorrectorNode(Node):
         self.model = load_weights(Path(weights))  # WeightsError: refuse to start
         self.stream = DepthStreamCorrector(self.model,
                                            input_convention=self.params["input_convention"],
-                                           device=self.params["device"])
+                                           device=self.params["device"],
+                                           threads=self.params["threads"])
         self.stats = CorrectorStats()
         self._camera_info: CameraInfo | None = None
         self._camera_info_ready = threading.Event()
@@ -198,16 +215,21 @@ class CorrectorNode(Node):
         out = self.params["output_topic"]
         base = out.rsplit("/", 1)[0]
         qos = qos_profile_sensor_data
+        reliable = self.params["input_reliability"] == "reliable"
+        in_qos = QoSProfile(depth=self.params["input_depth"], history=HistoryPolicy.KEEP_LAST,
+                            reliability=ReliabilityPolicy.RELIABLE if reliable
+                            else ReliabilityPolicy.BEST_EFFORT,
+                            durability=DurabilityPolicy.VOLATILE)
         self.pub_depth = self.create_publisher(Image, out, qos)
         self.pub_edges = self.create_publisher(Image, f"{base}/edges", qos)
         self.pub_confidence = self.create_publisher(Image, f"{base}/confidence", qos)
         self.pub_info = self.create_publisher(CameraInfo, f"{base}/camera_info", qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(Image, self.params["depth_topic"], self._on_depth, qos)
+        self.create_subscription(Image, self.params["depth_topic"], self._on_depth, in_qos)
         self.create_subscription(Image, self.params["amplitude_topic"], self._on_amplitude,
-                                 qos)
+                                 in_qos)
         self.create_subscription(CameraInfo, self.params["camera_info_topic"],
-                                 self._on_info, qos)
+                                 self._on_info, in_qos)
         self.add_post_set_parameters_callback(self._on_parameters_set)
         self.create_timer(self.params["diagnostics_period_s"], self._publish_diagnostics)
         h, w = self.model.shape

@@ -10,6 +10,8 @@ from collections.abc import Callable, Sequence
 def spin_node(rclpy, node_factory: Callable[[], object], argv: Sequence[str]) -> int:
     """Init rclpy with ``argv``, spin the node until shutdown, always clean up.
 
+    Returns the node's ``exit_code`` attribute (0 when it has none).
+
     ``rclpy.init`` needs HOME or ROS_LOG_DIR for its log files; a service environment may have
     neither, so fall back to the temporary directory rather than failing.
     """
@@ -19,6 +21,7 @@ def spin_node(rclpy, node_factory: Callable[[], object], argv: Sequence[str]) ->
 
     rclpy.init(args=["node", *argv])
     node = None
+    exit_code = 0
     try:
         node = node_factory()
         executor = MultiThreadedExecutor(num_threads=2)
@@ -28,9 +31,10 @@ def spin_node(rclpy, node_factory: Callable[[], object], argv: Sequence[str]) ->
         pass
     finally:
         if node is not None:
+            exit_code = int(getattr(node, "exit_code", 0))
             node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return exit_code
 
 
 def node_main(prog: str, description: str, node_module: str, node_class: str,
