@@ -11,7 +11,7 @@ from sim_helpers import small_camera
 
 from tof_mpd_ros.recordings import RecordingReader
 from tof_mpd_ros.sim.cell import SimCell
-from tof_mpd_ros.sim.dataset import DatasetSpec, capture_scene, generate_dataset
+from tof_mpd_ros.sim.dataset import DatasetSpec, capture_scene, generate_dataset, iter_captures
 
 SPEC = DatasetSpec(n_train_scenes=2, n_test_scenes=1, views_per_scene=3, n_calibration=4,
                    seed=5)
@@ -63,3 +63,15 @@ def test_scenes_are_deterministic_and_independent_of_order() -> None:
 def test_existing_output_is_refused(dataset: Path) -> None:
     with pytest.raises(FileExistsError):
         generate_dataset(dataset, SPEC, progress=False)
+
+
+def test_worker_processes_give_the_same_frames() -> None:
+    spec = DatasetSpec(n_train_scenes=1, n_test_scenes=0, views_per_scene=2, n_calibration=2,
+                       seed=3)
+    cell = SimCell(camera=small_camera())
+    serial = [f for c in iter_captures(spec, workers=1, cell=cell) for f in c.frames]
+    pooled = [f for c in iter_captures(spec, workers=2, cell=cell) for f in c.frames]
+    assert len(serial) == len(pooled) == 4
+    for a, b in zip(serial, pooled, strict=True):
+        np.testing.assert_array_equal(a.range_mm, b.range_mm)
+        np.testing.assert_array_equal(a.reference_mm, b.reference_mm)

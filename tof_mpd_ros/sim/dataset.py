@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import logging
 import multiprocessing as mp
+import os
 import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
@@ -129,6 +130,13 @@ def _run_calibration_chunk(chunk: tuple[int, int], spec: DatasetSpec,
     return SceneCapture("calibration", chunk[0], frames, [], [], time.perf_counter() - start)
 
 
+def _init_worker(threads: int) -> None:
+    """Worker start-up: numba kernels use ``threads`` threads."""
+    import numba
+
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
 def iter_captures(spec: DatasetSpec, *, workers: int = 1,
                   cell: SimCell | None = None) -> Iterator[SceneCapture]:
     """Every scene (train, then test) and the calibration captures in chunks, in order.
@@ -147,8 +155,11 @@ def iter_captures(spec: DatasetSpec, *, workers: int = 1,
             yield fn(*args)
         return
     # spawn, not fork: numba's threading layer in a parent that already rendered is not
-    # fork-safe.
-    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+    # fork-safe. The workers share the cores, so each runs its kernels on its share of them
+    # rather than all of them (outputs do not depend on the thread count).
+    threads = max(1, (os.cpu_count() or 1) // workers)
+    with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
+                             initializer=_init_worker, initargs=(threads,)) as pool:
         futures = [pool.submit(fn, *args) for fn, args in tasks]
         for future in futures:  # in submission order, so recordings are written in order
             yield future.result()

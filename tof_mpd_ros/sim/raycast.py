@@ -1,8 +1,10 @@
 """Analytic ray casting of a :class:`~tof_mpd_ros.sim.scene.Scene`.
 
-All rays are processed at once with numpy (no loop over pixels); the only Python loop is over
-the few objects of a scene. Each object first culls the rays against its bounding sphere, so an
-object costs in proportion to the rays that come near it.
+:func:`cast_rays` packs the scene into flat arrays and runs one compiled (numba) kernel over the
+rays in parallel; per ray it tests the table and then each object, culled by its bounding sphere.
+The kernel evaluates exactly the same floating-point expressions, in the same order, as the
+plain-numpy implementation :func:`cast_rays_reference` (all rays at once, a Python loop over the
+objects), which is kept as the test oracle: both give bit-identical hits.
 
 Units: origins, hit distances and the scene in **millimetres**, base frame; directions are unit
 vectors. Camera poses passed to :func:`render_surface` are camera-to-base with the translation in
@@ -11,9 +13,11 @@ vectors. Camera poses passed to :func:`render_surface` are camera-to-base with t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import lru_cache
 
+import numba as nb
 import numpy as np
 
 from ..camera import Intrinsics
@@ -219,8 +223,352 @@ def _apply_object(obj: PlacedObject, rays: _Rays, hits: RayHits) -> None:
     hits.material_id[sel] = obj.spec.material_id
 
 
+_KIND_CODES = {"box": 0, "prism": 0, "cylinder": 1, "sphere": 2}
+# planes per polyhedron (a box has 6, a prism 5)
+_MAX_PLANES = 6
+
+
+@dataclass(frozen=True)
+class _PackedScene:
+    """The scene as flat arrays for the kernel (object k of the arrays = ``scene.objects[k]``).
+
+    Attributes:
+        table: (6,) height, centre x, centre y, half extent x, half extent y (mm), albedo.
+        kind: (K,) int64 0 = polyhedron, 1 = cylinder, 2 = sphere.
+        geom: (K, 12) float64 x, y, z (mm), cos yaw, sin yaw, bounding-sphere centre x, y, z,
+            its radius squared, shape radius (cylinder, sphere), shape radius squared,
+            bounding-sphere radius.
+        height: (K,) float64 cylinder height, mm.
+        planes: (K, 6, 4) float64 polyhedron planes (normal, offset); ``n_planes`` (K,) used.
+    """
+
+    table: np.ndarray
+    kind: np.ndarray
+    geom: np.ndarray
+    height: np.ndarray
+    planes: np.ndarray
+    n_planes: np.ndarray
+
+
+def _pack(scene: Scene) -> _PackedScene:
+    """Flatten ``scene`` for :func:`_cast_kernel` (the same scalars the numpy oracle uses)."""
+    t = scene.table
+    table = np.array([t.height_mm, t.centre_xy_mm[0], t.centre_xy_mm[1], t.half_extent_mm[0],
+                      t.half_extent_mm[1], t.albedo], dtype=np.float64)
+    k = len(scene.objects)
+    kind = np.zeros(k, dtype=np.int64)
+    geom = np.zeros((k, 12))
+    height = np.zeros(k)
+    planes = np.zeros((k, _MAX_PLANES, 4))
+    n_planes = np.zeros(k, dtype=np.int64)
+    for i, obj in enumerate(scene.objects):
+        spec = obj.spec
+        kind[i] = _KIND_CODES[spec.kind]
+        centre, radius = obj.bounding_sphere()
+        shape_r = spec.dims_mm[0] / 2.0
+        geom[i] = [obj.x_mm, obj.y_mm, obj.z_mm, np.cos(obj.yaw_rad), np.sin(obj.yaw_rad),
+                   centre[0], centre[1], centre[2], radius**2, shape_r, shape_r**2, radius]
+        height[i] = spec.dims_mm[2]
+        if kind[i] == 0:
+            normals, offsets = spec.polyhedron_planes()
+            n_planes[i] = len(offsets)
+            planes[i, :len(offsets), :3] = normals
+            planes[i, :len(offsets), 3] = offsets
+    return _PackedScene(table, kind, geom, height, planes, n_planes)
+
+
+@nb.njit(cache=True, inline="always")
+def _dot3(n0, n1, n2, x, y, z):  # pragma: no cover - compiled
+    """n . (x, y, z) skipping zero coefficients, summed left to right (as ``_dot``)."""
+    acc = 0.0
+    first = True
+    if n0 != 0.0:
+        acc = n0 * x
+        first = False
+    if n1 != 0.0:
+        acc = n1 * y if first else acc + n1 * y
+        first = False
+    if n2 != 0.0:
+        acc = n2 * z if first else acc + n2 * z
+    return acc
+
+
+@nb.njit(cache=True, inline="always")
+def _kernel_polyhedron(planes, n_planes, ox, oy, oz, dx, dy, dz):  # pragma: no cover
+    """Entry t (inf = miss) and the entry plane index, object frame (as ``_hit_polyhedron``)."""
+    t_in = -np.inf
+    t_out = np.inf
+    k_in = 0
+    open_ = True
+    for k in range(n_planes):
+        a = planes[k, 0]
+        b = planes[k, 1]
+        c = planes[k, 2]
+        denom = _dot3(a, b, c, dx, dy, dz)
+        inside_by = planes[k, 3] - _dot3(a, b, c, ox, oy, oz)
+        if denom < 0.0:
+            t = inside_by / denom
+            if t > t_in:
+                t_in = t
+                k_in = k
+        elif denom > 0.0:
+            t = inside_by / denom
+            if t < t_out:
+                t_out = t
+        elif inside_by < 0.0:
+            open_ = False
+    if open_ and t_in <= t_out and t_in > T_MIN_MM:
+        return t_in, k_in
+    return np.inf, k_in
+
+
+@nb.njit(cache=True, inline="always")
+def _kernel_slab_z(oz, dz, top):  # pragma: no cover - compiled
+    """(lo, hi) of t inside 0 <= z <= top (as ``_slab_z``)."""
+    if dz == 0.0:
+        if oz >= 0.0 and oz <= top:
+            return -np.inf, np.inf
+        return np.inf, -np.inf
+    t0 = -oz / dz
+    t1 = (top - oz) / dz
+    return min(t0, t1), max(t0, t1)
+
+
+@nb.njit(cache=True, inline="always")
+def _kernel_cylinder(radius, radius2, height, ox, oy, oz, dx, dy, dz):  # pragma: no cover
+    """Entry t (inf = miss) and normal, object frame (as ``_hit_cylinder``)."""
+    a = dx * dx + dy * dy
+    b = ox * dx + oy * dy
+    c = ox * ox + oy * oy - radius2
+    disc = b * b - a * c
+    root = math.sqrt(max(disc, 0.0))
+    if a < 1e-12:
+        side_lo = -np.inf if c <= 0.0 else np.inf
+        side_hi = np.inf if c <= 0.0 else -np.inf
+    else:
+        side_lo = (-b - root) / a
+        side_hi = (-b + root) / a
+    if disc < 0.0:
+        side_lo = np.inf
+    cap_lo, cap_hi = _kernel_slab_z(oz, dz, height)
+    t_in = max(side_lo, cap_lo)
+    if not (t_in <= min(side_hi, cap_hi) and t_in > T_MIN_MM):
+        return np.inf, 0.0, 0.0, 0.0
+    if side_lo >= cap_lo:
+        return t_in, (ox + t_in * dx) / radius, (oy + t_in * dy) / radius, 0.0
+    return t_in, 0.0, 0.0, -1.0 if dz > 0.0 else (1.0 if dz < 0.0 else 0.0)
+
+
+@nb.njit(cache=True, inline="always")
+def _kernel_sphere(radius, radius2, ox, oy, oz, dx, dy, dz):  # pragma: no cover - compiled
+    """Entry t (inf = miss) and normal, object frame (as ``_hit_sphere``)."""
+    ocz = oz - radius
+    b = ox * dx + oy * dy + ocz * dz
+    c = ox * ox + oy * oy + ocz * ocz - radius2
+    disc = b * b - c
+    t_in = -b - math.sqrt(max(disc, 0.0))
+    if not (disc >= 0.0 and t_in > T_MIN_MM):
+        return np.inf, 0.0, 0.0, 0.0
+    return t_in, (ox + t_in * dx) / radius, (oy + t_in * dy) / radius, (ocz + t_in * dz) / radius
+
+
+@nb.njit(cache=True, inline="always")
+def _nearest_hit(ox, oy, oz, dx, dy, dz, table, kind, geom, height, planes,
+                 n_planes):  # pragma: no cover - compiled
+    """Nearest hit of one ray: (t (inf = miss), base-frame normal (NaN on a miss), hit index
+    (-1 miss, 0 table, k + 1 object k)), the table first, then the objects in order."""
+    best = np.inf
+    nx_b = np.nan
+    ny_b = np.nan
+    nz_b = np.nan
+    which = -1
+    # table (from either side)
+    t = (table[0] - oz) / dz
+    if ((t - t) == 0.0 and t > T_MIN_MM and abs(ox + t * dx - table[1]) <= table[3]
+            and abs(oy + t * dy - table[2]) <= table[4]):
+        best = t
+        nx_b = 0.0
+        ny_b = 0.0
+        nz_b = 1.0
+        which = 0
+    for k in range(kind.shape[0]):
+        g = geom[k]
+        # bounding-sphere cull in the base frame
+        cx = g[5] - ox
+        cy = g[6] - oy
+        cz = g[7] - oz
+        along = cx * dx + cy * dy + cz * dz
+        dist2 = cx * cx + cy * cy + cz * cz - along * along
+        if not (dist2 <= g[8] and along + g[11] > 0.0):
+            continue
+        c = g[3]
+        s = g[4]
+        x = ox - g[0]
+        y = oy - g[1]
+        lox = c * x + s * y
+        loy = c * y - s * x
+        loz = oz - g[2]
+        ldx = c * dx + s * dy
+        ldy = c * dy - s * dx
+        if kind[k] == 0:
+            tk, kp = _kernel_polyhedron(planes[k], n_planes[k], lox, loy, loz, ldx, ldy, dz)
+            nx = planes[k, kp, 0]
+            ny = planes[k, kp, 1]
+            nz = planes[k, kp, 2]
+        elif kind[k] == 1:
+            tk, nx, ny, nz = _kernel_cylinder(g[9], g[10], height[k], lox, loy, loz, ldx, ldy,
+                                              dz)
+        else:
+            tk, nx, ny, nz = _kernel_sphere(g[9], g[10], lox, loy, loz, ldx, ldy, dz)
+        if tk < best:
+            best = tk
+            nx_b = c * nx - s * ny
+            ny_b = s * nx + c * ny
+            nz_b = nz
+            which = k + 1
+    return best, nx_b, ny_b, nz_b, which
+
+
+@nb.njit(parallel=True, cache=True)
+def _cast_kernel(ox_a, oy_a, oz_a, stride, dx_a, dy_a, dz_a, table, kind, geom, height, planes,
+                 n_planes):  # pragma: no cover - compiled
+    """Nearest hit per ray: t (inf = miss), base-frame normal, hit index (-1 miss, 0 table,
+    k + 1 object k). Origins are (1,) arrays with ``stride`` 0 (shared), else (N,) with 1."""
+    n = dx_a.shape[0]
+    t_out = np.empty(n)
+    nrm = np.empty((n, 3))
+    which = np.empty(n, dtype=np.int64)
+    for i in nb.prange(n):
+        j = i * stride
+        t_out[i], nrm[i, 0], nrm[i, 1], nrm[i, 2], which[i] = _nearest_hit(
+            ox_a[j], oy_a[j], oz_a[j], dx_a[i], dy_a[i], dz_a[i], table, kind, geom, height,
+            planes, n_planes)
+    return t_out, nrm, which
+
+
+@nb.njit(parallel=True, cache=True)
+def _sl_kernel(dirs, origin, projector, proj_rot, proj_k, cos_min, tol_mm, table, kind, geom,
+               height, planes, n_planes):  # pragma: no cover - compiled
+    """Range of each SL camera ray that the camera sees and the projector lights, else NaN.
+
+    Args:
+        dirs: (N, 3) base-frame unit ray directions; origin: (3,) the SL camera centre.
+        projector: (3,) projector centre (base frame); proj_rot: (3, 3) base -> projector
+            rotation; proj_k: (fx, fy, cx, cy, width, height) of its pattern grid.
+        cos_min: smallest cosine of incidence measured; tol_mm: visibility tolerance.
+    """
+    n = dirs.shape[0]
+    out = np.full(n, np.nan)
+    for i in nb.prange(n):
+        dx = dirs[i, 0]
+        dy = dirs[i, 1]
+        dz = dirs[i, 2]
+        t, nx, ny, nz, which = _nearest_hit(origin[0], origin[1], origin[2], dx, dy, dz, table,
+                                            kind, geom, height, planes, n_planes)
+        if which < 0:
+            continue
+        # surfaces are seen from either side: |cos| of the incidence
+        if abs(nx * dx + ny * dy + nz * dz) < cos_min:
+            continue
+        px = origin[0] + t * dx
+        py = origin[1] + t * dy
+        pz = origin[2] + t * dz
+        # inside the projector's field of view
+        ox = px - projector[0]
+        oy = py - projector[1]
+        oz = pz - projector[2]
+        lz = proj_rot[2, 0] * ox + proj_rot[2, 1] * oy + proj_rot[2, 2] * oz
+        if not lz > 0.0:
+            continue
+        lx = proj_rot[0, 0] * ox + proj_rot[0, 1] * oy + proj_rot[0, 2] * oz
+        ly = proj_rot[1, 0] * ox + proj_rot[1, 1] * oy + proj_rot[1, 2] * oz
+        u = proj_k[0] * lx / lz + proj_k[2]
+        v = proj_k[1] * ly / lz + proj_k[3]
+        if not (u >= -0.5 and u <= proj_k[4] - 0.5 and v >= -0.5 and v <= proj_k[5] - 0.5):
+            continue
+        # not occluded from the projector
+        dist = math.sqrt(ox * ox + oy * oy + oz * oz)
+        if not dist > 0.0:
+            continue
+        ts = _nearest_hit(projector[0], projector[1], projector[2], ox / dist, oy / dist,
+                          oz / dist, table, kind, geom, height, planes, n_planes)[0]
+        if ts >= dist - tol_mm:
+            out[i] = t
+    return out
+
+
+def sl_ranges(scene: Scene, sl_to_base_mm: np.ndarray, intrinsics: Intrinsics,
+              projector_to_base_mm: np.ndarray, *, max_incidence_deg: float,
+              tol_mm: float) -> np.ndarray:
+    """Range of every structured-light pixel that the camera sees and the projector lights.
+
+    One compiled pass per pixel: the camera ray's nearest hit; the cosine of incidence at
+    least ``cos(max_incidence_deg)``; the point inside the projector's field of view (the
+    projector looks along its own z with ``intrinsics``); no surface between the projector and
+    the point nearer than its distance minus ``tol_mm``. The camera rays are the same as
+    :func:`render_surface`'s, so measured ranges are bit-identical to its ranges.
+
+    Args:
+        scene: the scene (base frame, mm).
+        sl_to_base_mm: (4, 4) SL camera optical frame -> base frame, mm.
+        intrinsics: the SL camera's image grid, also the projector's pattern grid.
+        projector_to_base_mm: (4, 4) projector frame -> base frame, mm.
+        max_incidence_deg: surfaces seen more obliquely are not measured, degrees.
+        tol_mm: projector visibility tolerance, mm.
+
+    Returns:
+        (H*W,) float64 radial range along each camera ray, mm; NaN = not measured.
+    """
+    pose = check_array("sl_to_base_mm", sl_to_base_mm, ndim=2, shape=(4, 4),
+                       dtype_kind="fiu").astype(np.float64, copy=False)
+    proj = np.asarray(projector_to_base_mm, dtype=np.float64)
+    dirs = np.ascontiguousarray(rotate(camera_rays(intrinsics), pose[:3, :3]))
+    k = intrinsics
+    p = _pack(scene)
+    return _sl_kernel(dirs, np.ascontiguousarray(pose[:3, 3]), np.ascontiguousarray(proj[:3, 3]),
+                      np.ascontiguousarray(proj[:3, :3].T),
+                      np.array([k.fx, k.fy, k.cx, k.cy, k.width, k.height], dtype=np.float64),
+                      math.cos(math.radians(max_incidence_deg)), float(tol_mm), p.table, p.kind,
+                      p.geom, p.height, p.planes, p.n_planes)
+
+
 def cast_rays(scene: Scene, origins_mm: np.ndarray, directions: np.ndarray) -> RayHits:
     """Nearest hit of each ray with the table and the objects.
+
+    Args:
+        scene: the scene (base frame, mm).
+        origins_mm: (3,) one origin shared by all rays, or (N, 3) one per ray; base frame, mm.
+        directions: (N, 3) float unit directions in the base frame.
+
+    Returns:
+        The nearest hits, see :class:`RayHits` (bit-identical to :func:`cast_rays_reference`).
+
+    Raises:
+        InputError: on wrongly shaped inputs.
+    """
+    d = check_array("directions", directions, ndim=2, shape=(None, 3), dtype_kind="f")
+    o = check_array("origins_mm", origins_mm, ndim=(1, 2), shape=(3,), dtype_kind="fiu")
+    o = o.astype(np.float64, copy=False)
+    if o.ndim == 2 and o.shape[0] != d.shape[0]:
+        raise InputError(f"origins_mm: expected (3,) or ({d.shape[0]}, 3), got {o.shape}")
+    shared = o.ndim == 1
+    comps = [np.ascontiguousarray(o[i:i + 1] if shared else o[:, i]) for i in range(3)]
+    dirs = [np.ascontiguousarray(v, dtype=np.float64) for v in d.T]
+    p = _pack(scene)
+    t, normal, which = _cast_kernel(*comps, 0 if shared else 1, *dirs, p.table, p.kind,
+                                    p.geom, p.height, p.planes, p.n_planes)
+    ids = np.array([-1, 0] + [obj.scene_index for obj in scene.objects], dtype=np.int32)
+    albedo = np.array([0.0, scene.table.albedo] + [obj.spec.albedo for obj in scene.objects])
+    material = np.array([-1, scene.table.material_id]
+                        + [obj.spec.material_id for obj in scene.objects], dtype=np.int32)
+    which += 1
+    return RayHits(t_mm=t, normal=normal, object_id=ids[which], albedo=albedo[which],
+                   material_id=material[which])
+
+
+def cast_rays_reference(scene: Scene, origins_mm: np.ndarray,
+                        directions: np.ndarray) -> RayHits:
+    """:func:`cast_rays` in plain numpy (all rays at once, a loop over objects): the test oracle.
 
     Args:
         scene: the scene (base frame, mm).
@@ -256,8 +604,9 @@ def cast_rays(scene: Scene, origins_mm: np.ndarray, directions: np.ndarray) -> R
 
 
 @lru_cache(maxsize=8)
-def _camera_rays(intrinsics: Intrinsics) -> np.ndarray:
-    """Cached (H*W, 3) float64 unit pixel rays in the optical frame (read-only)."""
+def camera_rays(intrinsics: Intrinsics) -> np.ndarray:
+    """Cached (H*W, 3) float64 unit pixel rays in the optical frame (read-only), the same as
+    ``intrinsics.ray_directions().reshape(-1, 3)``."""
     rays = intrinsics.ray_directions().reshape(-1, 3)
     rays.flags.writeable = False
     return rays
@@ -281,7 +630,7 @@ def render_surface(scene: Scene, camera_to_base_mm: np.ndarray,
     pose = check_array("camera_to_base_mm", camera_to_base_mm, ndim=2, shape=(4, 4),
                        dtype_kind="fiu").astype(np.float64, copy=False)
     rot = pose[:3, :3]
-    rays_cam = _camera_rays(intrinsics)
+    rays_cam = camera_rays(intrinsics)
     hits = cast_rays(scene, pose[:3, 3], rotate(rays_cam, rot))
     normal_cam = rotate(hits.normal, rot.T)
     # Surfaces are seen from whichever side the camera is on.

@@ -43,6 +43,9 @@ class RenderContext:
         amplitude: (H, W) float64 measured amplitude, set before the ``range`` stage.
         noise_params: parameters of the ``noise`` effect (also read by ``noise_model``).
         multipath_phasor: (H, W) complex128 indirect phasor once ``multipath`` has run.
+        receivers: (H, W) bool pixels the caller keeps, or None (all): ``multipath`` computes
+            the indirect light only there (the others still send light). Set only when no later
+            effect mixes neighbouring pixels, so the kept pixels are unchanged by it.
     """
 
     intrinsics: Intrinsics
@@ -58,3 +61,4 @@ class RenderContext:
     amplitude: np.ndarray | None = None
     noise_params: dict = field(default_factory=dict)
     multipath_phasor: np.ndarray | None = None
+    receivers: np.ndarray | None = None

@@ -154,13 +154,26 @@ def _readout(z: np.ndarray, config: ToFConfig, ctx: RenderContext) -> np.ndarray
     return _run_stage("range", range_mm, config, ctx)
 
 
+#: phasor-stage effects after ``multipath`` that mix neighbouring pixels: with any of them on,
+#: every pixel's indirect light is needed and ``receivers`` is ignored
+_PIXEL_MIXING_AFTER_MULTIPATH = ("subsurface", "lens_scatter")
+
+
 def _render(samples: SurfaceImage, config: ToFConfig, rng: np.random.Generator,
-            supersample: int, frame_index: int, motion: CameraMotion | None) -> ToFMeasurement:
+            supersample: int, frame_index: int, motion: CameraMotion | None,
+            receivers: np.ndarray | None = None) -> ToFMeasurement:
     s = supersample
     ctx = RenderContext(intrinsics=pixel_intrinsics(samples.intrinsics, s), surface=samples,
                         samples=samples, supersample=s, mod_freq_hz=config.mod_freq_hz,
                         light_power=config.light_power, rng=rng, frame_index=int(frame_index),
                         motion=motion, noise_params=dict(config.effects["noise"].params))
+    if receivers is not None and not any(config.effects[name].enabled
+                                         for name in _PIXEL_MIXING_AFTER_MULTIPATH):
+        receivers = np.asarray(receivers, dtype=bool)
+        if receivers.shape != ctx.intrinsics.shape:
+            raise InputError(f"receivers: expected shape {ctx.intrinsics.shape}, "
+                             f"got {receivers.shape}")
+        ctx.receivers = receivers
     samples = _run_stage("geometry", samples, config, ctx)
     ctx.samples = samples
     ctx.surface = centre_samples(samples, s)
@@ -188,7 +201,8 @@ def _render(samples: SurfaceImage, config: ToFConfig, rng: np.random.Generator,
 
 def render_tof(surface: SurfaceImage, config: ToFConfig, rng: np.random.Generator, *,
                supersample: int, frame_index: int = 0,
-               motion: CameraMotion | None = None) -> ToFMeasurement:
+               motion: CameraMotion | None = None,
+               receivers: np.ndarray | None = None) -> ToFMeasurement:
     """Simulate the ToF measurement of a ray-cast scene.
 
     Args:
@@ -199,6 +213,12 @@ def render_tof(surface: SurfaceImage, config: ToFConfig, rng: np.random.Generato
         supersample: samples per pixel and axis (odd values put a sample on the pixel centre).
         frame_index: index of the frame in its sequence (temperature drift).
         motion: camera velocity during the frame (time offset), None = at rest.
+        receivers: (H, W) bool, the pixels the caller keeps (None = all). ``multipath``, the
+            costly step, then computes the indirect light only for them (every pixel still
+            sends light), so a caller that crops a margin away pays nothing for the margin.
+            The kept pixels come out exactly as without it; the others lack the indirect
+            light. Ignored when ``subsurface`` or ``lens_scatter`` (which mix neighbouring
+            pixels after multipath) is on.
 
     Returns:
         ToFMeasurement on the H x W = surface grid / supersample pixel grid.
@@ -208,7 +228,7 @@ def render_tof(surface: SurfaceImage, config: ToFConfig, rng: np.random.Generato
         SimulationError: an effect could not be applied.
     """
     _check_inputs(surface, config, rng, supersample)
-    return _render(surface, config, rng, int(supersample), frame_index, motion)
+    return _render(surface, config, rng, int(supersample), frame_index, motion, receivers)
 
 
 def render_from_reference(reference_range: np.ndarray, intrinsics: Intrinsics,

@@ -296,7 +296,8 @@ def _gather(rx_pos, rx_nrm, rx_u, rx_v, s_pos, s_nrm, s_uv, s_emi_re, s_emi_im, 
 def indirect_phasor(surface: SurfaceImage, *, mod_freq_hz: float, light_power: float,
                     block_px: int = 3, step_px: float = 3.0, max_steps: int = 8,
                     eps_mm: float = 2.0, eps_rel: float = 0.01,
-                    tile_blocks: int = TILE_BLOCKS) -> np.ndarray:
+                    tile_blocks: int = TILE_BLOCKS,
+                    receivers: np.ndarray | None = None) -> np.ndarray:
     """One-bounce indirect phasor arriving at every pixel of ``surface``.
 
     Args:
@@ -310,6 +311,9 @@ def indirect_phasor(surface: SurfaceImage, *, mod_freq_hz: float, light_power: f
             ``eps_mm + eps_rel·range`` behind the visible surface.
         tile_blocks: sender tile size in blocks (tiles that cannot exchange light with a
             receiver are skipped as a whole; the result does not depend on it).
+        receivers: (H, W) bool, the pixels whose indirect light is computed (None = all). The
+            others still send light but receive none (0): for callers that discard them, e.g.
+            the margin of a rendering window. Each receiver's value does not depend on it.
 
     Returns:
         (H, W) complex128 indirect phasor (same amplitude units as the direct return); 0 where
@@ -320,6 +324,8 @@ def indirect_phasor(surface: SurfaceImage, *, mod_freq_hz: float, light_power: f
     h, w = surface.intrinsics.shape
     out = np.zeros((h, w), dtype=np.complex128)
     valid = surface.valid & np.all(np.isfinite(surface.normal), axis=-1)
+    if receivers is not None:
+        valid &= np.asarray(receivers, dtype=bool)
     if senders.area.size == 0 or not valid.any():
         return out
     vv, uu = np.nonzero(valid)

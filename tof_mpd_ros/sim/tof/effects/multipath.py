@@ -34,6 +34,7 @@ class Multipath(Effect):
         indirect = indirect_phasor(ctx.surface, mod_freq_hz=ctx.mod_freq_hz,
                                    light_power=ctx.light_power, block_px=int(params["block_px"]),
                                    step_px=float(params["step_px"]),
-                                   max_steps=int(params["max_steps"]))
+                                   max_steps=int(params["max_steps"]),
+                                   receivers=ctx.receivers)
         ctx.multipath_phasor = float(params["gain"]) * indirect
         return x + ctx.multipath_phasor
