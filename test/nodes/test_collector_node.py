@@ -30,6 +30,20 @@ def sim_cell(tmp_path_factory: pytest.TempPathFactory):
     assert stop_node(process) == 0, log.read_text()[-2000:]
 
 
+def assert_trainable(frames: list) -> None:
+    """The recorded frames train F and G, and the model corrects a recorded frame."""
+    from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+    from tof_mpd_ros.correction.pipeline import correct
+    from tof_mpd_ros.training.trainer import TrainConfig, train
+
+    calibration = IntrinsicCalibration.identity(*frames[0].range_mm.shape)
+    model, history = train(frames, calibration, TrainConfig(epochs=2, max_samples_per_frame=2000,
+                                                             val_fraction=0.0), progress=False)
+    assert len(history) == 2 and np.isfinite(history[-1]["loss_range"])
+    result = correct(model, frames[0].range_mm, frames[0].amplitude)
+    assert np.isfinite(result.range_mm).mean() > 0.8
+
+
 def frames_in(part: Path) -> int:
     try:
         with RecordingReader(part) as reader:
@@ -57,6 +71,7 @@ def test_collector_records_the_plan_and_rosbags_reads_it(sim_cell, tmp_path: Pat
     assert len(images) >= 6 and all(m.height == 140 and m.width == 180 for m in images)
     with RecordingReader(parts[0]) as reader:
         frames = list(reader.frames())
+    assert_trainable(frames)
     plan = sim_plan(0, "test", 0, 2, DEFAULT_T_FLANGE_CAMERA_M)
     for frame, view in zip(frames, plan, strict=True):
         np.testing.assert_allclose(frame.pose, view.camera_to_base_m(DEFAULT_T_FLANGE_CAMERA_M),
