@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import (
@@ -41,7 +42,7 @@ from ..correction.depth_stream import (
     decode_depth,
 )
 from ..correction.weights import load_weights
-from ..errors import InputError
+from ..errors import InputError, TofMpdError
 from ..image_encoding import mm_to_depth
 from .pairing import LatestQueueWorker, StampPairer
 from .parameters import ParameterSpec as P
@@ -52,8 +53,8 @@ from .ros_messages import cropped_camera_info, image_message, intrinsics_of, sta
 PARAMETERS = (
     P("weights_path", "", "Correction weights (.npz); empty = the weights shipped with the "
       "package.", read_only=True),
-    P("depth_topic", "/tof/depth/image_raw", "Input depth image (32FC1 m, 16UC1 mm or "
-      "64FC1 m).", read_only=True),
+    P("depth_topic", "/tof/depth/image_raw", "Input depth image (REP 118: 32FC1/64FC1 in m, "
+      "16UC1/mono16 in mm).", read_only=True),
     P("amplitude_topic", "/tof/amplitude/image_raw", "Input amplitude image, same size.",
       read_only=True),
     P("camera_info_topic", "/tof/camera_info", "CameraInfo of the depth image.",
@@ -85,6 +86,11 @@ PARAMETERS = (
       max_value=60.0, read_only=True),
 )
 
+# Unmatched images kept per stream while they wait for a partner.
+PAIRING_HISTORY = 8
+# This many out-of-order images in a row are a jump back in time (a recording replayed from
+# its start, a restarted driver): pairing starts again instead of dropping everything after.
+RESET_AFTER_OUT_OF_ORDER = 2 * PAIRING_HISTORY
 # A stream silent for this long while depth images arrive is reported as missing.
 STALE_AFTER_S = 1.0
 # The worker waits this long for the first CameraInfo before dropping a pair.
@@ -124,6 +130,12 @@ class CorrectorStats:
         self._period_drops: collections.Counter[str] = collections.Counter()
         self._period_error = ""
         self._period_published = 0
+        self.pairing_resets = 0
+
+    def note_reset(self) -> None:
+        """The pairer restarted after a jump back in time."""
+        with self._lock:
+            self.pairing_resets += 1
 
     def receive(self, stream: str) -> None:
         """An image or CameraInfo of ``stream`` (one of :attr:`STREAMS`) arrived."""
@@ -172,6 +184,7 @@ class CorrectorStats:
                 values[f"received_{stream}"] = str(self.received[stream])
                 last = self.last_received.get(stream)
                 values[f"{stream}_age_s"] = "never" if last is None else f"{now - last:.2f}"
+            values["pairing_resets"] = str(self.pairing_resets)
             values["dropped_total"] = str(sum(self.drops.values()))
             values.update({f"dropped_{k}": str(self.drops[k]) for k in DROP_REASONS})
             values["last_error"] = self.last_error
@@ -190,30 +203,39 @@ class CorrectorNode(Node):
     crop's), all with the input depth image's header; and ``/diagnostics``.
 
     Raises:
-        WeightsError: the weights file is missing or unreadable (the executable turns this
-            into one line on stderr and exit code 2).
+        WeightsError: the weights file is missing or unreadable.
+        TofMpdError: a parameter is out of range, or the model does not run on ``device``.
+        (The executable turns these into one line on stderr and exit code 2.)
     """
 
     def __init__(self) -> None:
         super().__init__("corrector")
-        self.params = declare(self, PARAMETERS)
+        try:
+            self.params = declare(self, PARAMETERS)
+        except (ValueError, InvalidParameterValueException) as err:
+            raise InputError(f"bad parameter: {err}") from err
         weights = self.params["weights_path"] or str(default_weights_path())
         self.model = load_weights(Path(weights))  # WeightsError: refuse to start
         self.stream = DepthStreamCorrector(self.model,
                                            input_convention=self.params["input_convention"],
                                            device=self.params["device"],
                                            threads=self.params["threads"])
+        try:  # JIT and thread pools now, not on the first frame; a bad device fails here
+            warm_s = self.stream.warm_up()
+        except Exception as err:
+            raise TofMpdError(f"the model does not run on device {self.params['device']!r}: "
+                              f"{type(err).__name__}: {err}") from err
         self.stats = CorrectorStats()
         self._camera_info: CameraInfo | None = None
         self._camera_info_ready = threading.Event()
         self._pair_lock = threading.Lock()
         self._last_logged: dict[str, float] = {}
         self.pairer: StampPairer[Image, Image] = StampPairer(
-            round(self.params["sync_tolerance_s"] * 1e9))
+            round(self.params["sync_tolerance_s"] * 1e9), history=PAIRING_HISTORY,
+            reset_after=RESET_AFTER_OUT_OF_ORDER)
         self.worker: LatestQueueWorker[_Pair] = LatestQueueWorker(
             self._process, maxsize=self.params["queue_size"], on_error=self._worker_error)
         out = self.params["output_topic"]
-        base = out.rsplit("/", 1)[0]
         qos = qos_profile_sensor_data
         reliable = self.params["input_reliability"] == "reliable"
         in_qos = QoSProfile(depth=self.params["input_depth"], history=HistoryPolicy.KEEP_LAST,
@@ -221,9 +243,9 @@ class CorrectorNode(Node):
                             else ReliabilityPolicy.BEST_EFFORT,
                             durability=DurabilityPolicy.VOLATILE)
         self.pub_depth = self.create_publisher(Image, out, qos)
-        self.pub_edges = self.create_publisher(Image, f"{base}/edges", qos)
-        self.pub_confidence = self.create_publisher(Image, f"{base}/confidence", qos)
-        self.pub_info = self.create_publisher(CameraInfo, f"{base}/camera_info", qos)
+        self.pub_edges = self.create_publisher(Image, _beside(out, "edges"), qos)
+        self.pub_confidence = self.create_publisher(Image, _beside(out, "confidence"), qos)
+        self.pub_info = self.create_publisher(CameraInfo, _beside(out, "camera_info"), qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_subscription(Image, self.params["depth_topic"], self._on_depth, in_qos)
         self.create_subscription(Image, self.params["amplitude_topic"], self._on_amplitude,
@@ -236,7 +258,7 @@ class CorrectorNode(Node):
         self.get_logger().info(
             f"correcting {self.params['depth_topic']} + {self.params['amplitude_topic']} -> "
             f"{out} (central {w}x{h} window, {self.params['input_convention']} convention) "
-            f"with {weights}")
+            f"with {weights}; warm-up frame {warm_s * 1e3:.0f} ms")
 
     # -- callbacks: cheap, never block --------------------------------------------------
     def _on_parameters_set(self, parameters: list[Parameter]) -> None:
@@ -264,13 +286,13 @@ class CorrectorNode(Node):
         stamp = stamp_ns(msg)
         with self._pair_lock:
             s = self.pairer.stats
-            before = (s.unmatched_left, s.unmatched_right, s.out_of_order_dropped)
+            before = (s.unmatched_left, s.unmatched_right, s.out_of_order_dropped, s.resets)
+            last_ns = self.pairer.last_emitted_ns
             if left:
                 pair = self.pairer.add_left(stamp, msg)
             else:
                 pair = self.pairer.add_right(stamp, msg)
-            after = (s.unmatched_left, s.unmatched_right, s.out_of_order_dropped)
-            last_ns = self.pairer.last_emitted_ns
+            after = (s.unmatched_left, s.unmatched_right, s.out_of_order_dropped, s.resets)
         tol_ms = self.params["sync_tolerance_s"] * 1e3
         for _ in range(after[0] - before[0]):
             self._drop("no_amplitude", f"a depth image found no amplitude image on "
@@ -282,6 +304,12 @@ class CorrectorNode(Node):
             kind = "depth" if left else "amplitude"
             self._drop("out_of_order", f"{kind} image stamped {_stamp_text(stamp)} is not newer "
                        f"than the last paired stamp {_stamp_text(last_ns)}")
+        if after[3] > before[3]:
+            self.stats.note_reset()
+            self.get_logger().warning(
+                f"stamps jumped back by {(last_ns - stamp) / 1e9:.3f} s "
+                f"({RESET_AFTER_OUT_OF_ORDER} out-of-order images in a row): pairing restarted "
+                f"at {_stamp_text(stamp)}")
         if pair is not None:
             dropped_before = self.worker.dropped
             self.worker.submit(_Pair(pair[0], pair[1], pair[2], time.monotonic()))
@@ -380,6 +408,11 @@ class CorrectorNode(Node):
     def destroy_node(self) -> None:
         self.worker.stop(timeout=5.0, discard=True)
         super().destroy_node()
+
+
+def _beside(topic: str, name: str) -> str:
+    """``/a/b/image`` -> ``/a/b/<name>``; ``image`` -> ``<name>``."""
+    return f"{topic.rsplit('/', 1)[0]}/{name}" if "/" in topic else name
 
 
 def _fields(msg: Image) -> tuple[Any, ...]:

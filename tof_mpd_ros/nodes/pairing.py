@@ -25,6 +25,7 @@ class PairingStats:
     unmatched_left: int = 0
     unmatched_right: int = 0
     out_of_order_dropped: int = 0
+    resets: int = 0
 
     @property
     def unmatched_dropped(self) -> int:
@@ -40,18 +41,25 @@ class StampPairer(Generic[T, U]):
     ``tolerance_ns``. Messages older than the newest emitted pair are out of order and dropped;
     unmatched messages are kept up to ``history`` per stream, then dropped (oldest first). Every
     drop is counted in :attr:`stats`.
+
+    With ``reset_after`` > 0, that many out-of-order messages in a row are taken for a jump
+    back in time (a recording replayed from its start, a restarted camera): the pairer forgets
+    its state (counted in ``stats.resets``) and pairs from the current message on. 0 never
+    resets.
     """
 
     tolerance_ns: int
     history: int = 8
+    reset_after: int = 0
     stats: PairingStats = field(default_factory=PairingStats)
     _left: collections.deque = field(init=False)
     _right: collections.deque = field(init=False)
     _last_emitted_ns: int = field(default=-1, init=False)
+    _streak: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
-        if self.tolerance_ns < 0 or self.history < 1:
-            raise ValueError("tolerance_ns must be >= 0 and history >= 1")
+        if self.tolerance_ns < 0 or self.history < 1 or self.reset_after < 0:
+            raise ValueError("tolerance_ns must be >= 0, history >= 1 and reset_after >= 0")
         self._left = collections.deque()
         self._right = collections.deque()
 
@@ -71,8 +79,15 @@ class StampPairer(Generic[T, U]):
     def _add(self, mine: collections.deque, other: collections.deque, stamp_ns: int,
              message: object, *, left_first: bool) -> tuple | None:
         if stamp_ns <= self._last_emitted_ns:
-            self.stats.out_of_order_dropped += 1
-            return None
+            self._streak += 1
+            if not self.reset_after or self._streak < self.reset_after:
+                self.stats.out_of_order_dropped += 1
+                return None
+            # Time went back: start again from this message; those still waiting for a partner
+            # are dropped as unmatched.
+            self._reset()
+        else:
+            self._streak = 0
         best = min(range(len(other)), key=lambda i: abs(other[i][0] - stamp_ns), default=None)
         if best is not None and abs(other[best][0] - stamp_ns) <= self.tolerance_ns:
             other_stamp, other_message = other[best]
@@ -93,6 +108,17 @@ class StampPairer(Generic[T, U]):
             mine.popleft()
             self._unmatched(left=left_first)
         return None
+
+    def _reset(self) -> None:
+        for _ in self._left:
+            self._unmatched(left=True)
+        for _ in self._right:
+            self._unmatched(left=False)
+        self._left.clear()
+        self._right.clear()
+        self._last_emitted_ns = -1
+        self._streak = 0
+        self.stats.resets += 1
 
     def _unmatched(self, *, left: bool) -> None:
         if left:

@@ -1,0 +1,308 @@
+"""Corrector node latency and drops at 30 Hz and 60 Hz: publisher -> corrector -> listener.
+
+Three processes on loopback, in their own ROS domain (``--domain-id``, default 91):
+
+* a publisher (this script with ``--role publisher``) sends a 180x140 depth (32FC1 z-depth, m)
+  + amplitude (32FC1) + CameraInfo triple at the rate, every triple stamped just before it is
+  published, from a paced loop;
+* the ``corrector`` node executable with its default parameters (``queue_size`` 2, one CPU
+  thread) and an untrained 180x140 model (``--weights`` to use a trained file: the per-frame
+  cost does not depend on the weights' values; ``--window 32x24`` processes a small central
+  window of the same frames, to see what the node itself sustains);
+* the listener (this process) receives the corrected depth and ``/diagnostics``.
+
+End-to-end latency = listener receive time - the input's header stamp (one host clock): it
+includes both transports, pairing, queueing and the correction. Drops = frames sent in the
+measured window without a corrected output; the node's own counters (``dropped_<reason>``,
+``received_depth``) split them into drops in the node and losses in transport. The input frame is
+a synthetic table-top (plane, box, cylinder; 180x140, DS325 optics) with amplitude falloff and
+noise; the in-process ``DepthStreamCorrector.correct`` time of the same frame is printed beside
+the node figures. The node is restarted for each rate.
+
+Prints the machine (CPU model, cores, load average) and a side-by-side table; ``--json`` writes
+the same numbers. Usage: ``python benchmarks/bench_corrector_node.py [--seconds 20]
+[--rates 30 60] [--window 180x140] [--json out.json]``. Takes ~2x(seconds + 15) s.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:  # run from a checkout without installing
+    sys.path.insert(0, str(REPO))
+CROP = (140, 180)  # (H, W): the paper's crop, which is also the published frame here
+OUTPUT = "/tof/depth_corrected/image"
+
+
+def cpu_model() -> str:
+    """CPU model name from /proc/cpuinfo (falls back to platform.processor())."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def synthetic_frame(seed: int = 0) -> tuple[np.ndarray, np.ndarray, object]:
+    """A table-top seen from 300 mm: plane + box + cylinder, with amplitude falloff and noise.
+
+    Returns:
+        (depth_m, amplitude, intrinsics): (140, 180) float32 z-depth in metres, (140, 180)
+        float32 amplitude, and the crop's :class:`~tof_mpd_ros.camera.Intrinsics`.
+    """
+    from tof_mpd_ros.camera import PAPER_CROP, Intrinsics
+
+    k = Intrinsics.ds325().crop(*PAPER_CROP)
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[0:k.height, 0:k.width].astype(np.float64)
+    z = 300.0 + 0.15 * (v - k.cy)                                  # tilted table, mm
+    box = (np.abs(u - 60) < 25) & (np.abs(v - 70) < 30)
+    z[box] -= 120.0
+    cyl = (u - 125) ** 2 / 20.0 ** 2 + (v - 60) ** 2 / 45.0 ** 2 < 1
+    z[cyl] -= 90.0 + 10.0 * np.sqrt(np.clip(1 - (u[cyl] - 125) ** 2 / 400.0, 0, 1))
+    r = z / k.z_per_radial()
+    amplitude = 4e7 / r ** 2 * (0.6 + 0.4 * (box | cyl))
+    z = z + rng.normal(0.0, 1.5, z.shape)
+    return ((z / 1000.0).astype(np.float32),
+            (amplitude * (1 + rng.normal(0, 0.02, z.shape))).astype(np.float32), k)
+
+
+def ros_env(domain_id: int, log_dir: str) -> dict[str, str]:
+    env = dict(os.environ)
+    env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id),
+               ROS_LOG_DIR=log_dir, PYTHONPATH=str(REPO) + os.pathsep
+               + env.get("PYTHONPATH", ""))
+    return env
+
+
+# -- the publisher process --------------------------------------------------------------------
+def run_publisher(rate: float, seconds: float, warmup_s: float) -> None:
+    """Paced publishing: warm-up frames at 2 Hz, then ``seconds`` at ``rate``; prints JSON."""
+    import rclpy
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import CameraInfo, Image
+
+    from tof_mpd_ros.nodes.ros_messages import camera_info_message, image_message
+
+    depth_m, amplitude, k = synthetic_frame()
+    rclpy.init()
+    node = rclpy.create_node("bench_publisher")
+    qos = qos_profile_sensor_data
+    pubs = (node.create_publisher(Image, "/tof/depth/image_raw", qos),
+            node.create_publisher(Image, "/tof/amplitude/image_raw", qos),
+            node.create_publisher(CameraInfo, "/tof/camera_info", qos))
+    msgs = (image_message(depth_m, "32FC1", "tof_optical_frame"),
+            image_message(amplitude, "32FC1", "tof_optical_frame"),
+            camera_info_message(k, "tof_optical_frame"))
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not all(p.get_subscription_count() >= 1
+                                                  for p in pubs):
+        time.sleep(0.05)
+
+    def send() -> int:
+        stamp = node.get_clock().now().to_msg()
+        for msg, pub in zip(msgs, pubs, strict=True):
+            msg.header.stamp = stamp
+            pub.publish(msg)
+        return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+    end = time.monotonic() + warmup_s
+    while time.monotonic() < end:
+        send()
+        time.sleep(0.5)
+    time.sleep(1.0)
+    period = 1.0 / rate
+    n = round(seconds * rate)
+    t0 = time.perf_counter() + 0.05
+    stamps = []
+    for i in range(n):
+        delay = t0 + i * period - time.perf_counter()
+        if delay > 0:
+            time.sleep(delay)
+        stamps.append(send())
+    late = (time.perf_counter() - t0 - (n - 1) * period) * 1e3
+    print(json.dumps({"sent": n, "first_ns": stamps[0], "last_ns": stamps[-1],
+                      "late_ms": late}), flush=True)
+    time.sleep(1.0)  # let the last frames reach the corrector before the writers leave
+    node.destroy_node()
+    rclpy.try_shutdown()
+
+
+# -- the listener (this process) --------------------------------------------------------------
+def measure(rate: float, args: argparse.Namespace, weights: Path, log_dir: str) -> dict:
+    import rclpy
+    from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import Image
+
+    env = ros_env(args.domain_id, log_dir)
+    log = open(Path(log_dir) / f"corrector_{rate:g}hz.log", "w")
+    corrector = subprocess.Popen(
+        [sys.executable, "-m", "tof_mpd_ros.nodes.corrector", "--ros-args",
+         "-p", f"weights_path:={weights}", "-p", "diagnostics_period_s:=0.5"],
+        env=env, stdout=log, stderr=subprocess.STDOUT)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=args.domain_id)
+    node = rclpy.create_node("bench_listener", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    received: dict[int, int] = {}  # stamp -> receive time, ns
+    diagnostics: list[dict[str, str]] = []
+
+    def on_output(msg: Image) -> None:
+        now = time.time_ns()
+        received[msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec] = now
+
+    def on_diag(msg: DiagnosticArray) -> None:
+        for s in msg.status:
+            if s.name == "tof_mpd_ros: corrector":
+                diagnostics.append({kv.key: kv.value for kv in s.values})
+
+    deep = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT,
+                      history=HistoryPolicy.KEEP_LAST, depth=1000)
+    node.create_subscription(Image, OUTPUT, on_output, deep)
+    node.create_subscription(DiagnosticArray, "/diagnostics", on_diag, 100)
+
+    def spin(seconds: float, until=lambda: False) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end and not until():
+            executor.spin_once(timeout_sec=0.02)
+
+    try:
+        spin(90, lambda: bool(diagnostics) or corrector.poll() is not None)
+        if corrector.poll() is not None:
+            raise SystemExit(f"the corrector did not start:\n{Path(log.name).read_text()}")
+        publisher = subprocess.Popen(
+            [sys.executable, __file__, "--role", "publisher", "--rate", str(rate),
+             "--seconds", str(args.seconds)], env=env, stdout=subprocess.PIPE, text=True)
+        while publisher.poll() is None:
+            spin(0.2)
+        report = json.loads(publisher.stdout.read().strip().splitlines()[-1])
+        n_diag = len(diagnostics)
+        spin(3.0, lambda: len(diagnostics) >= n_diag + 3)
+        final = diagnostics[-1]
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        context.try_shutdown()
+        corrector.send_signal(2)
+        try:
+            corrector.wait(10)
+        except subprocess.TimeoutExpired:
+            corrector.kill()
+        log.close()
+
+    first, last = report["first_ns"], report["last_ns"]
+    lat = np.array([(t - s) / 1e6 for s, t in received.items() if first <= s <= last])
+    out = {"rate_hz": rate, "sent": report["sent"], "corrected": int(lat.size),
+           "dropped": report["sent"] - int(lat.size),
+           "publisher_late_ms": round(report["late_ms"], 1),
+           "latency_p50_ms": float(np.percentile(lat, 50)) if lat.size else float("nan"),
+           "latency_p99_ms": float(np.percentile(lat, 99)) if lat.size else float("nan"),
+           "latency_max_ms": float(lat.max()) if lat.size else float("nan"),
+           "node_received_depth": int(final.get("received_depth", 0)),
+           "node_published": int(final.get("published", 0)),
+           "node_dropped": {k[len("dropped_"):]: int(v) for k, v in final.items()
+                            if k.startswith("dropped_") and k != "dropped_total" and int(v)},
+           "node_latency_p50_ms": float(final.get("latency_p50_ms", "nan")),
+           "node_latency_p99_ms": float(final.get("latency_p99_ms", "nan"))}
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--rates", type=float, nargs="+", default=[30.0, 60.0])
+    parser.add_argument("--seconds", type=float, default=20.0, help="measured time per rate")
+    parser.add_argument("--domain-id", type=int, default=91)
+    parser.add_argument("--weights", type=Path, help="weights file (default: untrained "
+                        "model of --window)")
+    parser.add_argument("--window", default="180x140", help="WxH processed by the default "
+                        "untrained model (the published frame stays 180x140): a small window "
+                        "shows what the node itself sustains")
+    parser.add_argument("--json", help="also write the numbers to this JSON file")
+    parser.add_argument("--role", choices=("listener", "publisher"), default="listener",
+                        help=argparse.SUPPRESS)
+    parser.add_argument("--rate", type=float, default=30.0, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.role == "publisher":
+        run_publisher(args.rate, args.seconds, warmup_s=3.0)
+        return
+
+    os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+                      ROS_DOMAIN_ID=str(args.domain_id))
+    log_dir = tempfile.mkdtemp(prefix="bench_corrector_")
+    os.environ.setdefault("ROS_LOG_DIR", log_dir)
+    import torch
+
+    from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+    from tof_mpd_ros.correction.depth_stream import DepthStreamCorrector
+    from tof_mpd_ros.correction.pipeline import CorrectionModel
+    from tof_mpd_ros.correction.weights import load_weights, save_weights
+
+    weights = args.weights
+    if weights is None:
+        win_w, win_h = (int(x) for x in args.window.lower().split("x"))
+        weights = save_weights(Path(log_dir) / "untrained.npz", CorrectionModel.untrained(
+            IntrinsicCalibration.identity(win_h, win_w)))
+    # The same frame corrected in this process, with the node's default of one thread.
+    depth_m, amplitude, k = synthetic_frame()
+    model = load_weights(weights)
+    stream = DepthStreamCorrector(model, threads=1)
+    times = []
+    for _ in range(12):
+        t0 = time.perf_counter()
+        stream.correct(depth_m * np.float32(1000.0), amplitude, k)
+        times.append((time.perf_counter() - t0) * 1e3)
+    offline_ms = float(np.median(times[2:]))
+
+    machine = {"cpu": cpu_model(), "cores": os.cpu_count(),
+               "load_average_1_5_15": [round(x, 2) for x in os.getloadavg()],
+               "python": platform.python_version(), "torch": torch.__version__}
+    results = [measure(rate, args, weights, log_dir) for rate in args.rates]
+    machine["load_average_after"] = [round(x, 2) for x in os.getloadavg()]
+
+    print(f"machine: {machine['cpu']}, {machine['cores']} cores, load average "
+          f"{machine['load_average_1_5_15']} before / {machine['load_average_after']} after")
+    print(f"frame: {CROP[1]}x{CROP[0]} 32FC1, processed window {model.shape[1]}x"
+          f"{model.shape[0]}; in-process DepthStreamCorrector.correct (1 thread): median "
+          f"{offline_ms:.1f} ms")
+    rows = [("input rate (Hz)", "rate_hz", "{:g}"), ("frames sent", "sent", "{}"),
+            ("corrected", "corrected", "{}"), ("dropped", "dropped", "{}"),
+            ("  node: received depth", "node_received_depth", "{}"),
+            ("  node: published", "node_published", "{}"),
+            ("  node: drops by reason", "node_dropped", "{}"),
+            ("end-to-end p50 (ms)", "latency_p50_ms", "{:.1f}"),
+            ("end-to-end p99 (ms)", "latency_p99_ms", "{:.1f}"),
+            ("end-to-end max (ms)", "latency_max_ms", "{:.1f}"),
+            ("in node p50 (ms)", "node_latency_p50_ms", "{:.1f}"),
+            ("in node p99 (ms)", "node_latency_p99_ms", "{:.1f}"),
+            ("publisher late at end (ms)", "publisher_late_ms", "{}")]
+    table = [(label, [fmt.format(r[key]) if not isinstance(r[key], dict)
+                      else (", ".join(f"{k} {v}" for k, v in r[key].items()) or "none")
+                      for r in results]) for label, key, fmt in rows]
+    width = max(len(c) for _, cells in table for c in cells) + 2
+    for label, cells in table:
+        print(f"{label:<28}" + "".join(f"{c:>{width}}" for c in cells))
+    if args.json:
+        Path(args.json).write_text(json.dumps(
+            {"machine": machine, "window": list(model.shape[::-1]),
+             "offline_correct_ms": offline_ms, "results": results}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
