@@ -12,6 +12,7 @@ from .metrics import (
     DEFAULT_THRESHOLDS_MM,
     AccuracyCurve,
     EdgePRCurve,
+    FrameAccumulator,
     FrameEvaluation,
     accuracy_curve,
     boundary_region,
@@ -21,6 +22,6 @@ from .metrics import (
 
 __all__ = [
     "BOUNDARY_RADIUS_PX", "DEFAULT_THRESHOLDS_MM", "AccuracyCurve", "EdgePRCurve",
-    "FrameEvaluation", "accuracy_curve", "boundary_region", "edge_precision_recall",
-    "evaluate_frames",
+    "FrameAccumulator", "FrameEvaluation", "accuracy_curve", "boundary_region",
+    "edge_precision_recall", "evaluate_frames",
 ]

@@ -239,15 +239,51 @@ def evaluate_frames(estimates: np.ndarray | Sequence[np.ndarray],
     masks = None if boundary_masks is None else _frames("boundary_masks", boundary_masks)
     if masks is not None and len(masks) != len(ref):
         raise InputError(f"boundary_masks: expected {len(ref)} frames, got {len(masks)}")
-    t = _check_thresholds(thresholds)
-    whole, boundary = _Tally(t), _Tally(t)
+    acc = FrameAccumulator(thresholds, radius_px=radius_px)
     for i, (e, r) in enumerate(zip(est, ref, strict=True)):
-        e, r = _check_pair(e, r)
-        m = boundary_region(r, radius_px) if masks is None else masks[i].astype(bool)
+        acc.add(e, r, None if masks is None else masks[i])
+    return acc.result()
+
+
+class FrameAccumulator:
+    """:func:`evaluate_frames` one frame at a time, so no frame has to be kept in memory.
+
+    ``acc.add(estimate, reference, mask)`` for each frame, then ``acc.result()``; the result is
+    identical to ``evaluate_frames`` over the same frames.
+
+    Args:
+        thresholds: (T,) thresholds in mm (default 1..20).
+        radius_px: boundary-region radius (5 px), used when ``add`` gets no mask.
+    """
+
+    def __init__(self, thresholds: Sequence[float] | np.ndarray = DEFAULT_THRESHOLDS_MM, *,
+                 radius_px: float = BOUNDARY_RADIUS_PX) -> None:
+        t = _check_thresholds(thresholds)
+        self.radius_px = float(radius_px)
+        self._whole, self._boundary = _Tally(t), _Tally(t)
+        self.n_frames = 0
+
+    def add(self, estimate: np.ndarray, reference: np.ndarray,
+            boundary_mask: np.ndarray | None = None) -> None:
+        """Pool one frame.
+
+        Args:
+            estimate: (H, W) float range in mm, NaN = no answer (a failure).
+            reference: (H, W) float reference range in mm, NaN = missing.
+            boundary_mask: (H, W) bool boundary region; default :func:`boundary_region`.
+        """
+        e, r = _check_pair(estimate, reference)
+        m = (boundary_region(r, self.radius_px) if boundary_mask is None
+             else np.asarray(boundary_mask).astype(bool))
         check_same_shape(reference=r, boundary_mask=m)
-        whole.add(e, r, None)
-        boundary.add(e, r, m)
-    return FrameEvaluation(whole.curve(), boundary.curve(), len(ref), float(radius_px))
+        self._whole.add(e, r, None)
+        self._boundary.add(e, r, m)
+        self.n_frames += 1
+
+    def result(self) -> FrameEvaluation:
+        """The pooled :class:`FrameEvaluation` of the frames added so far."""
+        return FrameEvaluation(self._whole.curve(), self._boundary.curve(), self.n_frames,
+                               self.radius_px)
 
 
 @dataclass(frozen=True)
