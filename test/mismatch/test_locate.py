@@ -20,7 +20,7 @@ def test_noise_only_is_not_flagged():
     rng = np.random.default_rng(0)
     sigma = np.full((40, 60), 3.0)
     res = [rng.normal(0, 3.0, sigma.shape) for _ in range(3)]
-    v, u = np.mgrid[0:40, 0:60]
+    _v, u = np.mgrid[0:40, 0:60]
     desc = [_descriptors(np.abs(u - 30.0))] * 3
     loc = locate(desc, res, [sigma] * 3)
     assert abs(loc["global"]["z"]) < 4.0
@@ -31,7 +31,7 @@ def test_noise_only_is_not_flagged():
 def test_edge_residual_is_located_near_edges():
     rng = np.random.default_rng(0)
     sigma = np.full((40, 60), 3.0)
-    v, u = np.mgrid[0:40, 0:60]
+    _v, u = np.mgrid[0:40, 0:60]
     dist = np.abs(u - 30.0)
     res = [rng.normal(0, 3.0, sigma.shape) + np.where(dist < 1.5, 6.0, 0.0) for _ in range(3)]
     loc = locate([_descriptors(dist)] * 3, res, [sigma] * 3)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.mismatch.realdata import (
     DEFAULT_DIR,
     BrownConrady,
     azure_kinect_frame,
     plane_reference,
 )
-from tof_mpd_ros.camera import Intrinsics
 
 
 def test_zero_distortion_is_a_pinhole():

@@ -73,3 +73,27 @@ def test_benchmark_help_says_what_it_does(capsys):
         main(["mismatch-benchmark", "--help"])
     text = capsys.readouterr().out
     assert "labels.json" in text and "benchmark.json" in text and "min" in text
+
+
+@pytest.mark.slow
+def test_benchmark_runs_blind_and_scores(tmp_path):
+    from tof_mpd_ros.mismatch import run_benchmark
+    doc = run_benchmark(2, seed=5, out_dir=tmp_path, n_frames=4)
+    assert (tmp_path / "labels.json").exists() and (tmp_path / "benchmark.txt").exists()
+    assert len(list((tmp_path / "cases").glob("*.npz"))) == 2
+    # the case files hold frames only: nothing names the concealed effect
+    with np.load(tmp_path / "cases" / "case_000.npz") as npz:
+        assert set(npz.files) <= {"range_mm", "amplitude", "reference_mm", "fx", "fy", "cx",
+                                  "cy", "mod_freq_hz", "stamp_ns", "pose"}
+    s = doc["summary"]
+    for key in ("top1_accuracy", "false_alarm_rate", "parameter_error_median", "rmse_cut_mean"):
+        assert key in s
+
+
+def test_recordings_work_like_npz(drift_npz, tmp_path):
+    from tof_mpd_ros.mismatch import analyse, load_frames
+    from tof_mpd_ros.recordings import import_npz
+    import_npz(drift_npz, tmp_path / "rec")
+    frames = load_frames(tmp_path / "rec")
+    assert len(frames) == 6 and all(f.reference_mm is not None for f in frames)
+    assert analyse(frames, max_effects=1).selected == ["temperature_drift"]

@@ -22,9 +22,11 @@ def register(subparsers: Any) -> None:
                     "fits every candidate effect on alternate frames and scores it on the "
                     "others, and writes into OUT: report.json (selected, ranking, parameters, "
                     "rmse_before_mm, rmse_after_mm, localisation), fitted_config.json, PNG "
-                    "plots and index.html. Takes about 20-60 s for 8 frames of 96x72 on two "
-                    "cores, growing with the pixel count (multipath ~ pixels^2).")
-    p.add_argument("real", help="recording directory, .mcap or .npz with references")
+                    "plots and index.html. Takes about 0.5-2 min for 6-8 frames of 96x72 on two "
+                    "busy cores (~2 min for the 160x144 Azure Kinect frame), growing with the "
+                    "pixel count (interreflection ~ pixels^2).")
+    p.add_argument("real", help="recording directory, .mcap or .npz with references, or the "
+                                "Azure Kinect sample folder (plane-fit reference)")
     p.add_argument("--sim-config", help="simulator config JSON to diagnose (default nominal)")
     p.add_argument("-o", "--out", required=True, help="output directory (created)")
     p.add_argument("--max-effects", type=int, default=2, help="most effects to select (2)")
@@ -34,17 +36,19 @@ def register(subparsers: Any) -> None:
 
     b = subparsers.add_parser(
         "mismatch-benchmark", help="score the mismatch tool on concealed-effect cases",
-        description="Generates N 'real' 8-frame sweeps of random scenes in the simulated cell "
+        description="Generates N 'real' 6-frame sweeps of random scenes in the simulated cell "
                     "(ray-cast, supersampled, structured-light reference), each carrying a "
                     "random concealed effect with random parameters, nothing (controls, 20%%) "
                     "or two effects (15%%); runs the tool blind on each .npz; writes OUT/"
                     "cases/*.npz, OUT/labels.json (hidden truth, read only for scoring), "
                     "OUT/results/*.json, OUT/benchmark.json and OUT/benchmark.txt (top-1, false "
-                    "alarms, parameter error, RMSE reduction). Takes about 1 min per case on "
-                    "two cores.")
+                    "alarms, parameter error, RMSE reduction). Takes about 1-2.5 min per case on "
+                    "two busy cores (generation ~15 s, analysis the rest).")
     b.add_argument("--cases", type=int, default=8, help="number of cases (8)")
     b.add_argument("--seed", type=int, default=0, help="seed of the whole benchmark (0)")
-    b.add_argument("--frames", type=int, default=8, help="frames per case (8)")
+    b.add_argument("--frames", type=int, default=6, help="frames per case (6)")
+    b.add_argument("--merge", nargs="+", metavar="RUN_DIR",
+                   help="instead of running: score finished benchmark directories together")
     b.add_argument("-o", "--out", required=True, help="output directory (created)")
     b.set_defaults(func=_benchmark)
 
@@ -64,9 +68,12 @@ def _mismatch(args: argparse.Namespace) -> int:
 
     from ..mismatch import analyse, load_frames, write_report
     from ..mismatch.fit import CANDIDATES
+    from ..mismatch.realdata import azure_kinect_config, is_azure_kinect_dir
 
     frames = load_frames(args.real)
     config = _load_config(args.sim_config)
+    if config is None and is_azure_kinect_dir(args.real):
+        config = azure_kinect_config()
     total = len(CANDIDATES) * max(args.max_effects, 1)
     with tqdm(total=total, desc="fitting candidates", file=sys.stderr) as bar:
         analysis = analyse(frames, config, max_effects=args.max_effects,
@@ -85,8 +92,13 @@ def _benchmark(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..mismatch import run_benchmark
-    from ..mismatch.benchmark import text_table
+    from ..mismatch.benchmark import merge_runs, text_table
 
+    if args.merge:
+        doc = merge_runs(args.merge, args.out)
+        print(text_table(doc["cases"], doc["summary"]))
+        print(json.dumps(doc["summary"], indent=2))
+        return 0
     with tqdm(total=args.cases, desc="benchmark cases", file=sys.stderr) as bar:
         doc = run_benchmark(args.cases, args.seed, args.out, n_frames=args.frames,
                             progress=lambda msg: bar.update(1))

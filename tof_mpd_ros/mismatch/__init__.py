@@ -13,7 +13,7 @@ Pure numpy/scipy; never imports rclpy.
 
 from __future__ import annotations
 
-from .analyse import Analysis, analyse
+from .analysis import Analysis, analyse
 from .benchmark import run_benchmark
 from .data import load_frames
 from .fit import CANDIDATES

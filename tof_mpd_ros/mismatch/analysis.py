@@ -20,22 +20,40 @@ from ..errors import MismatchError
 from ..frame import ToFFrame
 from ..sim.tof import ToFConfig
 from .data import camera_motion, check_frames, split_frames
-from .features import DESCRIPTORS, all_descriptors
+from .features import DESCRIPTORS, all_descriptors, edge_jump_mm
 from .fit import CANDIDATES, FitResult, Problem, fit_effect
-from .likelihood import REFERENCE_NOISE_MM, total_sigma
+from .likelihood import REFERENCE_NOISE_MM, tile_t_statistic, total_sigma
 from .locate import describe_stratum, locate, strata
 from .predict import FramePredictor
 
 _log = logging.getLogger(__name__)
 
 #: a candidate is significant when its score (millinats per held-out pixel, after the
-#: complexity penalty) and its tile t-statistic both exceed these
-MIN_SCORE = 5.0
+#: complexity penalty) and its tile t-statistic both exceed these. 15 mnats/px is a practical
+#: threshold: a Gaussian residual gains ½δ² per pixel from removing a systematic error of δσ,
+#: so it asks for ~0.17σ RMS explained, or a noise law ~13 % off (log s − (1 − 1/s²)/2)
+MIN_SCORE = 15.0
 MIN_T = 3.0
+#: later greedy rounds judge what the first fit left behind, which includes that fit's own
+#: imperfections: a second effect must explain clearly more
+MIN_SCORE_LATER = 20.0
 #: parsimony: among candidates scoring within this fraction of the best, the one with the fewest
 #: parameters is preferred (a richer effect can mimic a simpler one, e.g. subsurface blur with
 #: no delay is a mixed-pixel blur)
 PARSIMONY = 0.15
+#: ...unless the richer leader is better by this fraction of its score *and* significantly so
+#: on the held-out tiles (paired t)
+MIN_RICHER_GAIN = 0.01
+MIN_PAIRED_T = 3.0
+#: a richer effect fitted in the limit where its own physics vanishes *is* the simpler effect:
+#: subsurface scattering whose delayed share shifts the range by less than this (fraction ×
+#: delay, mm) is only a blur of the phasor, i.e. a pixel-footprint (mixed-pixel) effect
+SUBSURFACE_MIN_SHIFT_MM = 1.0
+NESTED: dict[str, tuple[str, Callable[[dict[str, float]], bool]]] = {
+    "subsurface": ("mixed_pixels",
+                   lambda p: p.get("fraction", 0.0) * p.get("delay_mm", 0.0)
+                   < SUBSURFACE_MIN_SHIFT_MM),
+}
 #: "interior" metrics leave out pixels this close to a depth edge (px), where flying pixels and
 #: the reference's own edge errors dominate whatever the model
 INTERIOR_EDGE_PX = 2.0
@@ -90,16 +108,43 @@ class Analysis:
         return rows
 
 
-def rank(results: list[FitResult]) -> list[FitResult]:
-    """Best score first, except that a candidate within ``PARSIMONY`` of the best score with
-    fewer parameters goes first (ties of explanatory power go to the simpler physics)."""
+def paired_t(problem: Problem, rich: FitResult, simple: FitResult) -> float:
+    """Tile t-statistic of how much better ``rich`` fits the held-out pixels than ``simple``."""
+    frames = problem.frames_of("test")
+    masks = problem.masks("test")
+    gain = [problem.cost_map(i, simple.config) - problem.cost_map(i, rich.config)
+            for i in frames]
+    return tile_t_statistic(gain, [masks[i] for i in frames])
+
+
+def rank(results: list[FitResult], problem: Problem | None = None) -> list[FitResult]:
+    """Best score first, with Occam's razor: a candidate with fewer parameters scoring within
+    ``PARSIMONY`` of the leader takes the lead unless the leader fits the held-out pixels
+    clearly better (by ``MIN_RICHER_GAIN`` of its score, with paired tile t >=
+    ``MIN_PAIRED_T``); a richer effect can mimic a simpler one. A leader fitted in the limit
+    where it reduces to a simpler candidate (``NESTED``: subsurface with no delay is a
+    mixed-pixel blur) yields to that candidate when it scores within ``PARSIMONY``."""
     ordered = sorted(results, key=lambda r: -r.score)
     if not ordered or ordered[0].score <= 0:
         return ordered
-    top = ordered[0].score
-    close = [r for r in ordered if r.score >= (1.0 - PARSIMONY) * top and not r.note]
-    simplest = min(close, key=lambda r: (r.n_params, -r.score))
-    return [simplest] + [r for r in ordered if r is not simplest]
+    lead = ordered[0]
+    if lead.effect in NESTED:
+        simpler, degenerate = NESTED[lead.effect]
+        alt = [r for r in ordered if r.effect == simpler and not r.note
+               and r.score >= (1.0 - PARSIMONY) * lead.score]
+        if alt and degenerate(lead.parameters):
+            lead = alt[0]
+            return [lead] + [r for r in ordered if r is not lead]
+    for r in sorted(ordered, key=lambda r: (r.n_params, -r.score)):
+        if (r is lead or r.note or r.n_params >= lead.n_params
+                or r.score < (1.0 - PARSIMONY) * lead.score):
+            continue
+        clearly_better = (lead.score - r.score > MIN_RICHER_GAIN * lead.score
+                          and problem is not None and paired_t(problem, lead, r) >= MIN_PAIRED_T)
+        if not clearly_better:
+            lead = r
+            break
+    return [lead] + [r for r in ordered if r is not lead]
 
 
 def _significant(r: FitResult, min_score: float, min_t: float) -> bool:
@@ -109,7 +154,7 @@ def _significant(r: FitResult, min_score: float, min_t: float) -> bool:
 def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
             max_effects: int = 2, candidates: Sequence[str] = CANDIDATES,
             reference_noise_mm: float = REFERENCE_NOISE_MM, min_score: float = MIN_SCORE,
-            min_t: float = MIN_T,
+            min_t: float = MIN_T, edge_exclusion_px: float = 0.0,
             progress: Callable[[str], None] | None = None) -> Analysis:
     """Locate, name, model and show the sim-vs-real mismatch of ``frames``.
 
@@ -120,6 +165,8 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
         candidates: effect names to consider.
         reference_noise_mm: std of the reference range, mm.
         min_score, min_t: significance thresholds (see ``MIN_SCORE``, ``MIN_T``).
+        edge_exclusion_px: pixels closer than this to a reference depth edge are not used
+            (1 = the edge pixels themselves; 0 = use every pixel).
         progress: called with a short message after each fitted candidate.
 
     Raises:
@@ -131,12 +178,16 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
     predictors = [FramePredictor(f, base, frame_index=i, motion=m)
                   for i, (f, m) in enumerate(zip(frames, motions, strict=True))]
     real = [np.asarray(f.range_mm, dtype=np.float64) for f in frames]
+    descriptors = all_descriptors(predictors, motions)
+    # pixels on a reference depth edge are left out of fits and scores: one reference sample
+    # cannot say where inside the pixel the edge lies, so their prediction is unreliable
     usable = [np.isfinite(r) & np.isfinite(p.predict().range_mm)
-              for r, p in zip(real, predictors, strict=True)]
+              & (d["edge_distance_px"] >= edge_exclusion_px)
+              for r, p, d in zip(real, predictors, descriptors, strict=True)]
     if not any(u.any() for u in usable):
         raise MismatchError("no pixel has both a real range and a predicted one")
-    problem = Problem(real, predictors, split_frames(frames), usable, reference_noise_mm)
-    descriptors = all_descriptors(predictors, motions)
+    jumps = [edge_jump_mm(f.reference_mm) for f in frames]
+    problem = Problem(real, predictors, split_frames(frames), usable, reference_noise_mm, jumps)
     residual0, sigma0 = _residuals(problem, None)
     location = locate(descriptors, residual0, sigma0)
 
@@ -151,18 +202,23 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
             results.append(fit_effect(problem, name))
             if progress:
                 progress(name)
-        results = rank(results)
+        results = rank(results, problem)
         rounds.append(results)
         for r in results:
             evidence[f"{k + 1}:{r.effect}"] = explain(problem, r, descriptors)
         best = results[0] if results else None
-        if best is None or not _significant(best, min_score, min_t):
+        threshold = min_score if k == 0 else max(min_score, MIN_SCORE_LATER)
+        if best is None or not _significant(best, threshold, min_t):
             break
         selected.append(best.effect)
         _log.info("round %d: %s (score %.1f, t %.1f)", k + 1, best.effect, best.score,
                   best.t_stat)
-        problem = Problem(real, [p.rebased(best.config) for p in problem.predictors],
-                          problem.split, usable, reference_noise_mm)
+        rebased = [p.rebased(best.config) for p in problem.predictors]
+        # a moved camera (pose effects) can leave a pixel unpredicted: judge only pixels that
+        # every model so far predicts
+        usable = [u & np.isfinite(p.predict().range_mm)
+                  for u, p in zip(usable, rebased, strict=True)]
+        problem = Problem(real, rebased, problem.split, usable, reference_noise_mm, jumps)
     return _finish(problem, base, selected, rounds, evidence, location, predictors,
                    descriptors)
 
@@ -188,7 +244,7 @@ def _finish(problem: Problem, base: ToFConfig, selected: list[str],
     test = problem.frames_of("test")
     masks = problem.masks("test")
     before_p = Problem(problem.real_mm, original, problem.split, problem.usable,
-                       problem.reference_noise_mm)
+                       problem.reference_noise_mm, problem.edge_jump_mm)
     rb, sb = _residuals(before_p, None, test)
     ra, sa = _residuals(problem, None, test)
     rb = [np.where(masks[i], r, np.nan) for i, r in zip(test, rb, strict=True)]
@@ -269,7 +325,8 @@ def _concentration(flat: dict[str, np.ndarray], correction: np.ndarray) -> str:
     if best is None or abs(best_rho) < 0.2:
         return "correction spread evenly over the image"
     ok = np.isfinite(flat[best])
-    st = strata(best, flat[best][ok], mag[ok], np.ones(int(ok.sum())))
+    # huge σ: no clipping, only the bins' means are used here
+    st = strata(best, flat[best][ok], mag[ok], np.full(int(ok.sum()), 1e12))
     top = max(st, key=lambda x: x.mean_mm)
     return (f"correction concentrated where {describe_stratum(top.as_dict())} "
             f"(mean {top.mean_mm:.2f} mm vs {mag.mean():.2f} mm overall; "

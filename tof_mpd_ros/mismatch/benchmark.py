@@ -28,7 +28,7 @@ import numpy as np
 
 from ..errors import MismatchError
 from ..recordings import save_npz
-from .analyse import analyse
+from .analysis import MIN_SCORE, MIN_T, analyse
 from .cases import CONCEALABLE, generate_case
 from .data import load_frames
 from .fit import free_params
@@ -137,28 +137,88 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "rmse_cut_mean": mean(cuts), "rmse_cut_median": median(cuts),
         "excess_rmse_cut_interior_mean": mean(ex), "excess_rmse_cut_interior_median": median(ex),
         "per_effect_top1": {k: mean(v) for k, v in sorted(per_effect.items())},
+        "per_effect_parameter_error_median": {
+            k: median([r["parameter_error"][k] for r in eff if k in r["parameter_error"]])
+            for k in sorted({k for r in eff for k in r["parameter_error"]})},
+        # how visible the effects are globally (the tool's own before-modelling statistics)
+        "concealment_median_abs_global_mean_mm": median(
+            [abs(r["global_mean_residual_mm"]) for r in eff
+             if r.get("global_mean_residual_mm") is not None]),
+        "concealment_median_global_variance_ratio": median(
+            [r.get("global_variance_ratio") for r in eff]),
+        "controls_median_global_variance_ratio": median(
+            [r.get("global_variance_ratio") for r in ctrl]),
     }
+
+
+def _num(x: float | None) -> str:
+    return "  n/a" if x is None else f"{x:5.2f}"
 
 
 def text_table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
     """Plain-text table of the cases and the summary."""
-    lines = [f"{'case':>4}  {'truth':34s} {'selected':34s} ok  rmse b/a (mm)  excess b/a (mm)"]
+    lines = [f"{'case':>6}  {'truth':34s} {'selected':34s} ok  rmse b/a (mm)  excess b/a (mm)"]
     for r in rows:
         lines.append(
-            f"{r['case']:>4}  {'+'.join(r['truth']) or 'none':34s} "
+            f"{r['case']!s:>6}  {'+'.join(r['truth']) or 'none':34s} "
             f"{'+'.join(r['selected']) or 'none':34s} {'Y' if r['top1'] else 'n':2s}  "
-            f"{r['rmse_before_mm']:5.2f}/{r['rmse_after_mm']:5.2f}    "
-            f"{(r['excess_before_mm'] or 0):5.2f}/{(r['excess_after_mm'] or 0):5.2f}")
+            f"{_num(r['rmse_before_mm'])}/{_num(r['rmse_after_mm'])}    "
+            f"{_num(r['excess_before_mm'])}/{_num(r['excess_after_mm'])}")
     lines.append("")
     for k, v in summary.items():
         if not isinstance(v, dict):
             lines.append(f"{k:36s} {v if not isinstance(v, float) else round(v, 4)}")
     lines.append("per-effect top-1: " + ", ".join(
         f"{k} {v:.2f}" for k, v in summary["per_effect_top1"].items()))
+    lines.append("per-effect median parameter error: " + ", ".join(
+        f"{k} {v:.3f}" for k, v in summary["per_effect_parameter_error_median"].items()
+        if v is not None))
     return "\n".join(lines)
 
 
-def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int = 8,
+def reselect(result: dict[str, Any]) -> dict[str, Any]:
+    """A stored answer with the selection re-derived from its stored ranking under the current
+    thresholds (the fits are unchanged). Only a round-1 winner that no longer qualifies can
+    change the answer (to ``none``, with the "after" metrics equal to "before")."""
+    first = [r for r in result["ranking"] if r["round"] == 1]
+    if not first or not result["selected"]:
+        return result
+    top = first[0]
+    ok = (top["score"] is not None and top["score"] > MIN_SCORE
+          and top["t"] is not None and top["t"] > MIN_T)
+    if ok:
+        return result
+    out = dict(result, selected=[], parameters={})
+    out["metrics"] = dict(result["metrics"])
+    for key in list(out["metrics"]):
+        if "_after" in key:
+            out["metrics"][key] = out["metrics"][key.replace("_after", "_before")]
+    return out
+
+
+def merge_runs(run_dirs: list[str | Path], out_dir: str | Path) -> dict[str, Any]:
+    """Score several finished benchmark directories as one (e.g. runs made in parallel); each
+    stored answer goes through :func:`reselect`."""
+    rows = []
+    for d in map(Path, run_dirs):
+        for label in json.loads((d / "labels.json").read_text()):
+            res = d / "results" / f"case_{label['case']:03d}.json"
+            if res.exists():
+                row = _score_case(label, reselect(json.loads(res.read_text())))
+                row["case"] = f"{d.name}/{label['case']}"
+                rows.append(row)
+    if not rows:
+        raise MismatchError(f"no scored case in {', '.join(map(str, run_dirs))}")
+    summary = summarise(rows)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    doc = _clean({"summary": summary, "cases": rows, "runs": [str(d) for d in run_dirs]})
+    (out / "benchmark.json").write_text(json.dumps(doc, indent=2))
+    (out / "benchmark.txt").write_text(text_table(rows, summary) + "\n")
+    return doc
+
+
+def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int = 6,
                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Generate ``n_cases`` cases, run the tool blind on each, score, write JSON + table.
 

@@ -76,14 +76,15 @@ class Sweep:
 
 
 def draw_sweep(rng: np.random.Generator, n_frames: int) -> Sweep:
-    """A random sweep 180–350 mm above the objects, tilt <= 30°, turning 20–45° in azimuth."""
+    """A random sweep 180–350 mm above the objects, tilt 12–30°, orbiting 40–70° in azimuth
+    (the arm moves at roughly 0.1–0.3 m/s, so a stamp offset of tens of ms matters)."""
     h0 = rng.uniform(200.0, 330.0)
-    t0 = rng.uniform(5.0, 25.0)
+    t0 = rng.uniform(15.0, 28.0)
     a0 = rng.uniform(0.0, 360.0)
     r0 = rng.uniform(-180.0, 180.0)
     end = (float(np.clip(h0 + rng.uniform(-40.0, 40.0), 180.0, 350.0)),
-           float(np.clip(t0 + rng.uniform(-8.0, 8.0), 0.0, 30.0)),
-           a0 + rng.choice([-1.0, 1.0]) * rng.uniform(20.0, 45.0), r0 + rng.uniform(-15.0, 15.0))
+           float(np.clip(t0 + rng.uniform(-6.0, 6.0), 12.0, 30.0)),
+           a0 + rng.choice([-1.0, 1.0]) * rng.uniform(40.0, 70.0), r0 + rng.uniform(-15.0, 15.0))
     return Sweep((h0, t0, a0, r0), end, float(rng.uniform(0.5, 0.9)),
                  n_frames * FRAME_PERIOD_S)
 

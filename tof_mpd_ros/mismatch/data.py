@@ -24,7 +24,9 @@ SPLIT_TILE_PX = 8
 
 
 def load_frames(path: str | Path) -> list[ToFFrame]:
-    """Frames of a recording (directory or ``.mcap``) or an interchange ``.npz``.
+    """Frames of a recording (directory or ``.mcap``) or an interchange ``.npz``; a folder laid
+    out like the Azure Kinect sample (``depth_000.npy``, ``ir_000.npy``, ``calibration.json``)
+    becomes one frame with its plane-fit reference (:mod:`.realdata`).
 
     Raises:
         MismatchError: the path does not exist, holds no frame, or a frame has no reference.
@@ -32,6 +34,9 @@ def load_frames(path: str | Path) -> list[ToFFrame]:
     path = Path(path)
     if not path.exists():
         raise MismatchError(f"{path}: no such file or directory")
+    from .realdata import azure_kinect_frame, is_azure_kinect_dir
+    if is_azure_kinect_dir(path):
+        return [azure_kinect_frame(path)[0]]
     try:
         if path.suffix == ".npz":
             from ..recordings import load_npz
@@ -114,10 +119,6 @@ class Split:
     train: tuple[np.ndarray, ...]
     test: tuple[np.ndarray, ...]
     how: str
-
-    def train_frames(self) -> list[int]:
-        """Indices of frames that hold training pixels."""
-        return [i for i, m in enumerate(self.train) if m.any()]
 
 
 def split_frames(frames: Sequence[ToFFrame], tile_px: int = SPLIT_TILE_PX) -> Split:

@@ -53,6 +53,22 @@ def depth_edges(range_mm: np.ndarray) -> np.ndarray:
     return edge & np.isfinite(r)
 
 
+def edge_jump_mm(range_mm: np.ndarray) -> np.ndarray:
+    """(H, W) float64 largest range step (mm) to a 4-neighbour at depth-edge pixels, else 0.
+
+    Holes count as no step (their side of the edge is unknown)."""
+    r = np.asarray(range_mm, dtype=np.float64)
+    jump = np.zeros(r.shape)
+    for axis in (0, 1):
+        d = np.abs(np.diff(r, axis=axis))
+        d = np.where(np.isfinite(d), d, 0.0)
+        lo = [(0, 0), (0, 0)]
+        hi = [(0, 0), (0, 0)]
+        lo[axis], hi[axis] = (1, 0), (0, 1)
+        jump = np.maximum(jump, np.maximum(np.pad(d, lo), np.pad(d, hi)))
+    return np.where(depth_edges(r), jump, 0.0)
+
+
 def concavity(range_mm: np.ndarray, frame: ToFFrame, sigma_px: float = 1.5) -> np.ndarray:
     """Negative Laplacian of the smoothed z-depth (mm per px²): > 0 in concave creases.
 

@@ -96,6 +96,7 @@ class Problem:
         split: training / held-out pixels.
         usable: per frame, (H, W) bool pixels with real range, reference and base prediction.
         reference_noise_mm: std of the reference, mm.
+        edge_jump_mm: per frame, (H, W) range step at reference depth edges (mm), or None.
     """
 
     real_mm: list[np.ndarray]
@@ -103,6 +104,7 @@ class Problem:
     split: Split
     usable: list[np.ndarray]
     reference_noise_mm: float = REFERENCE_NOISE_MM
+    edge_jump_mm: list[np.ndarray] | None = None
     _base_cost: dict[int, np.ndarray] = field(default_factory=dict)
 
     @property
@@ -127,16 +129,17 @@ class Problem:
         return np.where(np.isfinite(cost), cost, self._base_cost[i])
 
     def _raw_cost(self, pred: Prediction, i: int) -> np.ndarray:
-        sigma = total_sigma(pred.noise_mm, self.reference_noise_mm)
+        jump = 0.0 if self.edge_jump_mm is None else self.edge_jump_mm[i]
+        sigma = total_sigma(pred.noise_mm, self.reference_noise_mm, jump)
         return nll(self.real_mm[i] - pred.range_mm, sigma)
 
     def total_cost(self, config: ToFConfig | None, which: str) -> tuple[float, int]:
         """(sum of the cost over the ``which`` pixels, number of pixels)."""
         total, count = 0.0, 0
-        for i, m in zip(self.frames_of(which), [self.masks(which)[j]
-                                                 for j in self.frames_of(which)], strict=True):
-            total += float(self.cost_map(i, config)[m].sum())
-            count += int(m.sum())
+        for i, m in enumerate(self.masks(which)):
+            if m.any():
+                total += float(self.cost_map(i, config)[m].sum())
+                count += int(m.sum())
         return total, count
 
 
@@ -221,7 +224,7 @@ def fit_effect(problem: Problem, effect: str, *, max_evals: int = 150,
     starts = design[order[:2]] if k <= 2 else design[order[:1]]
     for start in starts:
         res = optimize.minimize(cost, start, method="Powell", bounds=[(0.0, 1.0)] * k,
-                                options={"xtol": 1e-3, "ftol": 1e-7,
+                                options={"xtol": 1e-2, "ftol": 1e-6,
                                          "maxfev": max_evals // len(starts)})
         if res.fun < best_c:
             best_u, best_c = np.clip(res.x, 0.0, 1.0), float(res.fun)
@@ -243,7 +246,8 @@ def score_fit(problem: Problem, result: FitResult) -> FitResult:
     if n == 0:
         result.note = "no held-out pixels"
         return result
-    result.test_gain = float(sum(g[m].sum() for g, m in zip(gains, used, strict=True)) / n)
+    result.test_gain = float(np.nan_to_num(
+        sum(np.nansum(g[m]) for g, m in zip(gains, used, strict=True)) / n))
     result.penalty = float(bic_penalty(result.n_params, n))
     result.t_stat = tile_t_statistic(gains, used)
     result.score = 1000.0 * (result.test_gain - result.penalty)

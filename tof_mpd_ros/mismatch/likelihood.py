@@ -18,11 +18,18 @@ NU = 4.0
 REFERENCE_NOISE_MM = 0.5
 #: pixels over which residuals are roughly correlated (for effective sample counts)
 CORRELATION_PX = 16.0
+#: where inside a pixel a depth edge lies is unknown to a one-sample reference: a quarter
+#: pixel of uncertainty, i.e. this fraction of the edge's range step, joins σ at edge pixels
+EDGE_POSITION_FRACTION = 0.25
 
 
-def total_sigma(noise_mm: np.ndarray, reference_noise_mm: float) -> np.ndarray:
-    """(H, W) float64 std of a residual in mm: ToF noise and reference noise in quadrature."""
-    return np.hypot(noise_mm, reference_noise_mm)
+def total_sigma(noise_mm: np.ndarray, reference_noise_mm: float,
+                edge_jump_mm: np.ndarray | float = 0.0) -> np.ndarray:
+    """(H, W) float64 std of a residual in mm: ToF noise, reference noise and, at depth edges,
+    the edge-position uncertainty (``EDGE_POSITION_FRACTION`` × the range step), in
+    quadrature."""
+    extra = EDGE_POSITION_FRACTION * np.asarray(edge_jump_mm, dtype=np.float64)
+    return np.sqrt(noise_mm ** 2 + reference_noise_mm ** 2 + extra ** 2)
 
 
 def nll(residual_mm: np.ndarray, sigma_mm: np.ndarray) -> np.ndarray:

@@ -160,8 +160,12 @@ def describe_stratum(st: dict[str, Any]) -> str:
     """Words for a stratum: ``"edge_distance_px in [0, 1.5)"``."""
     unit = DESCRIPTORS.get(st["descriptor"], ("", ""))[0]
     lo, hi = st["low"], st["high"]
-    if lo is None or not np.isfinite(lo):
+    lo_open = lo is None or not np.isfinite(lo)
+    hi_open = hi is None or not np.isfinite(hi)
+    if lo_open and hi_open:
+        return f"{st['descriptor']} (all)"
+    if lo_open:
         return f"{st['descriptor']} < {hi:.3g} {unit}".strip()
-    if hi is None or not np.isfinite(hi):
+    if hi_open:
         return f"{st['descriptor']} >= {lo:.3g} {unit}".strip()
     return f"{st['descriptor']} in [{lo:.3g}, {hi:.3g}) {unit}".strip()

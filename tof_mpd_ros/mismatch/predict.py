@@ -7,9 +7,9 @@ times: the state before every effect is cached for the base configuration, and a
 configuration resumes from the first effect in which it differs. The one-bounce indirect phasor
 (the expensive part) is computed once per frame at unit gain and scaled by the multipath gain;
 geometry effects (hand-eye, time offset) move the direct surface but keep that indirect phasor,
-which varies slowly with sub-pixel pose changes. Those moves use :func:`subpixel_move`, a
-continuous (bilinear) version of the simulator's warp: the simulator's nearest-pixel warp is
-piecewise constant in sub-pixel rotations, which a fitter cannot descend.
+which varies slowly with sub-pixel pose changes. Those moves use :func:`moved_direct_phasor`, a
+sub-pixel (bilinear, phasor-domain) version of the simulator's warp: the simulator's
+nearest-pixel warp is piecewise constant in sub-pixel rotations, which a fitter cannot descend.
 
 The albedo the reference lacks is inferred from the real amplitude by inverting the direct
 return (``a = P ρ cosθ / r²``), so amplitude-dependent physics (noise, amplitude bias,
@@ -20,17 +20,22 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
-from scipy import ndimage
+from scipy import ndimage, signal
+from scipy.spatial.transform import Rotation
 
+from ..camera import Intrinsics
+from ..errors import MismatchError
 from ..frame import ToFFrame
 from ..sim.surface import SurfaceImage
 from ..sim.tof import EFFECTS, CameraMotion, ToFConfig
 from ..sim.tof.context import RenderContext
 from ..sim.tof.effects.noise import phasor_noise_std
 from ..sim.tof.effects.phase_wrapping import PhaseWrapping
+from ..sim.tof.effects.pixel_offset import offset_pattern
 from ..sim.tof.phasor import direct_phasor, phase_per_mm
 from ..sim.tof.reference import surface_from_reference
 from ..sim.tof.transport import indirect_phasor
@@ -149,61 +154,103 @@ def _sample(img: np.ndarray, coords: np.ndarray, order: int) -> np.ndarray:
                                    prefilter=False)
 
 
-def subpixel_move(surface: SurfaceImage, rotvec: np.ndarray, translation_mm: np.ndarray,
-                  iterations: int = 3, edge_mm: float = 10.0) -> SurfaceImage:
-    """The surface seen from a camera moved by a small (R, t), with sub-pixel accuracy.
+def moved_direct_phasor(surface: SurfaceImage, rotvec: np.ndarray, translation_mm: np.ndarray,
+                        mod_freq_hz: float, light_power: float,
+                        iterations: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Direct phasor of ``surface`` seen from a camera moved by a small (R, t), sub-pixel exact.
 
     Same convention as :func:`tof_mpd_ros.sim.tof.warp.move_camera` (new camera at ``t`` with
-    rotation ``R`` in the old frame, ``p' = Rᵀ (p − t)``), but the backward map and the points
-    are interpolated bilinearly; across depth edges (neighbour ranges more than ``edge_mm``
-    apart) the nearest sample is used so no point floats between fore- and background.
+    rotation ``R`` in the old frame, ``p' = Rᵀ (p − t)``). Each surface sample's direct return
+    is computed from the new camera (range, incidence, falloff), then the *phasor* image is
+    resampled onto the new pixel grid by a bilinear backward map. Interpolating phasors rather
+    than ranges makes a pixel that a depth edge crosses after the move a mix of fore- and
+    background returns in proportion to its coverage, which is what a real pixel integrates.
 
     Args:
         surface: pixel-resolution surface image.
         rotvec: (3,) rotation vector in rad; translation_mm: (3,) in mm.
 
     Returns:
-        SurfaceImage on the same grid (holes where no source reaches).
+        (H, W) complex128 direct phasor and (H, W) bool "mostly covered by a surface".
     """
     rot = rotation_matrix(np.asarray(rotvec, dtype=np.float64))
     t = np.asarray(translation_mm, dtype=np.float64)
-    if not (np.any(rotvec) or np.any(t)):
-        return surface
     k = surface.intrinsics
     h, w = k.shape
     moved = (surface.points_mm() - t) @ rot
+    rng = np.linalg.norm(moved, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rays = moved / rng[..., None]
+    z_src = direct_phasor(rng, surface.normal @ rot, surface.albedo, rays, mod_freq_hz,
+                          light_power)
+    z_src = np.where(np.isfinite(z_src), z_src, 0.0)
     uv = k.project(moved)
+    u_img = np.nan_to_num(uv[..., 0], nan=-1e6)
+    v_img = np.nan_to_num(uv[..., 1], nan=-1e6)
     v0, u0 = np.mgrid[0:h, 0:w].astype(np.float64)
     sv, su = v0.copy(), u0.copy()
     for _ in range(iterations):
         coords = np.stack([sv, su])
-        lu = _sample(np.nan_to_num(uv[..., 0], nan=-1e6), coords, 1)
-        lv = _sample(np.nan_to_num(uv[..., 1], nan=-1e6), coords, 1)
-        ok = np.isfinite(lu) & (np.abs(lu) < 1e5) & (np.abs(lv) < 1e5)
+        lu = _sample(u_img, coords, 1)
+        lv = _sample(v_img, coords, 1)
+        # near holes the interpolated landing point is meaningless: keep the current guess
+        ok = np.isfinite(lu) & (np.abs(lu - u0) < 5.0) & (np.abs(lv - v0) < 5.0)
         su += np.where(ok, u0 - lu, 0.0)
         sv += np.where(ok, v0 - lv, 0.0)
     coords = np.stack([sv, su])
-    rng = surface.range_mm
-    lo = ndimage.minimum_filter(np.nan_to_num(rng, nan=-1e9), size=2, origin=-1)
-    hi = ndimage.maximum_filter(np.nan_to_num(rng, nan=1e9), size=2, origin=-1)
-    smooth = _sample((hi - lo < edge_mm).astype(np.float64), np.floor(coords), 0) > 0.5
-    lin = np.stack([_sample(moved[..., q], coords, 1) for q in range(3)], axis=-1)
-    near = np.stack([_sample(moved[..., q], coords, 0) for q in range(3)], axis=-1)
-    pts = np.where(smooth[..., None] & np.isfinite(lin), lin, near)
-    idx = np.clip(np.rint(coords), 0, [[[h - 1]], [[w - 1]]]).astype(np.intp)
-    inside = (su > -0.5) & (su < w - 0.5) & (sv > -0.5) & (sv < h - 0.5)
-    ok = inside & np.all(np.isfinite(pts), axis=-1)
-    rays = k.ray_directions()
-    # keep the point on the pixel's own ray: its range is the projection on the ray
-    rng_new = np.where(ok, np.einsum("hwk,hwk->hw", pts, rays), np.nan)
-    normal = np.where(ok[..., None], surface.normal[idx[0], idx[1]] @ rot, np.nan)
-    hit = np.isfinite(rng_new) & np.all(np.isfinite(normal), axis=-1)
-    return SurfaceImage(range_mm=np.where(hit, rng_new, np.nan),
-                        normal=np.where(hit[..., None], normal, np.nan),
-                        albedo=np.where(hit, surface.albedo[idx[0], idx[1]], 0.0),
-                        object_id=np.where(hit, surface.object_id[idx[0], idx[1]], -1),
-                        material_id=np.where(hit, surface.material_id[idx[0], idx[1]], -1),
-                        intrinsics=k)
+    z = np.nan_to_num(_sample(z_src.real, coords, 1)) + 1j * np.nan_to_num(
+        _sample(z_src.imag, coords, 1))
+    cover = np.nan_to_num(_sample(surface.valid.astype(np.float64), coords, 1))
+    return z, cover >= 0.5
+
+
+@lru_cache(maxsize=8)
+def _unit_pattern(intrinsics: Intrinsics, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The simulator's pixel-offset pattern at unit spread: (H, W) offsets and gains."""
+    off, gain = offset_pattern(intrinsics, int(seed), 0.0, 1.0, 1.0)
+    off.flags.writeable = False
+    gain.flags.writeable = False
+    return off, gain
+
+
+def pixel_offset_fast(range_mm: np.ndarray, params: Any, intrinsics: Intrinsics) -> np.ndarray:
+    """``pixel_offset`` with the simulator's pattern cached: the pattern is linear in the
+    parameters (mean + std · unit offset, gain_std · unit gain), and drawing it is the costly
+    part when the fitter calls it thousands of times."""
+    off, gain = _unit_pattern(intrinsics, int(params["seed"]))
+    offset = float(params["offset_mean_mm"]) + float(params["offset_std_mm"]) * off
+    return offset + (1.0 + float(params["gain_std"]) * gain) * range_mm
+
+
+def _gaussian_constant(img: np.ndarray, sigma: float) -> np.ndarray:
+    """``ndimage.gaussian_filter(img, sigma, mode="constant", truncate=3)`` by FFT along each
+    axis (same kernel, zero padding): wide PSFs cost O(N log N) instead of O(N σ)."""
+    radius = int(3.0 * sigma + 0.5)
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    kernel = np.exp(-0.5 * (x / sigma) ** 2)
+    kernel /= kernel.sum()
+    out = signal.fftconvolve(img, kernel[:, None], mode="same", axes=0)
+    return signal.fftconvolve(out, kernel[None, :], mode="same", axes=1)
+
+
+def lens_scatter_fast(z: np.ndarray, params: Any) -> np.ndarray:
+    """``lens_scatter`` (same equation as the simulator's effect) with FFT blurs."""
+    frac = float(params["fraction"])
+    sigma = float(params["sigma_px"])
+    if sigma < 6.0:
+        return EFFECTS["lens_scatter"].apply(z, params, None)  # type: ignore[arg-type]
+    glare = _gaussian_constant(z.real, sigma) + 1j * _gaussian_constant(z.imag, sigma)
+    return (1.0 - frac) * z + frac * glare
+
+
+def _compose(moves: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    """One (rotvec, translation) equal to applying ``moves`` in order (each in the frame the
+    previous one produced): R = R1 R2, t = t1 + R1 t2."""
+    rot, t = np.eye(3), np.zeros(3)
+    for rv, tr in moves:
+        t = t + rot @ np.asarray(tr, dtype=np.float64)
+        rot = rot @ rotation_matrix(rv)
+    return Rotation.from_matrix(rot).as_rotvec(), t
 
 
 def _geometry_move(name: str, params: Any, motion: CameraMotion | None
@@ -256,13 +303,15 @@ class FramePredictor:
         base: the configuration whose intermediate states are cached.
         frame_index: index of the frame in its recording (temperature drift).
         motion: camera velocity during the frame (time offset), or None.
-        albedo: (H, W) albedo, or None to infer it from the real amplitude.
+        albedo: (H, W) float albedo in [0, 1], or None to infer it from the real amplitude.
         indirect_cache: shared cache of indirect phasors (see :meth:`rebased`).
     """
 
     def __init__(self, frame: ToFFrame, base: ToFConfig, *, frame_index: int = 0,
                  motion: CameraMotion | None = None, albedo: np.ndarray | None = None,
                  indirect_cache: dict[tuple, np.ndarray] | None = None) -> None:
+        if frame.reference_mm is None:
+            raise MismatchError("the predictor needs the frame's reference range image")
         self.frame = frame
         self.frame_index = int(frame_index)
         self.motion = motion
@@ -287,7 +336,8 @@ class FramePredictor:
             rng_mm, amp = self._base_result.range_mm, self._base_result.amplitude
             return Prediction(rng_mm, amp, self._noise(amp, config))
         state = self._checkpoints[start]
-        copy = _State(state.surface, state.z, state.range_mm, state.amplitude)
+        copy = _State(state.surface, state.z, state.range_mm, state.amplitude,
+                      dict(state.extra))
         return self._run(config, start, copy, record=False)
 
     def rebased(self, base: ToFConfig) -> FramePredictor:
@@ -335,10 +385,11 @@ class FramePredictor:
         for i in range(start, len(PIPELINE)):
             if record:
                 self._checkpoints[i] = _State(state.surface, state.z, state.range_mm,
-                                              state.amplitude)
+                                              state.amplitude, dict(state.extra))
             name = PIPELINE[i]
             self._step(name, config, state, ctx, effects)
-        valid = (state.surface.valid & np.isfinite(state.range_mm) & self.reference_valid
+        hit = state.extra.get("hit", state.surface.valid)
+        valid = (hit & np.isfinite(state.range_mm) & self.reference_valid
                  & (state.amplitude >= config.min_amplitude))
         rng_mm = np.where(valid, state.range_mm, np.nan)
         amp = np.where(valid, state.amplitude, np.nan)
@@ -349,21 +400,34 @@ class FramePredictor:
         """Apply one pipeline step to ``state`` (mirrors ``sim.tof.render._render``, s = 1)."""
         if name is None:  # direct return of the (possibly moved) surface
             s = state.surface
-            state.z = direct_phasor(s.range_mm, s.normal, s.albedo,
-                                    s.intrinsics.ray_directions(), config.mod_freq_hz,
-                                    config.light_power)
+            moves = state.extra.get("moves")
+            if moves:
+                state.z, hit = moved_direct_phasor(s, *_compose(moves), config.mod_freq_hz,
+                                                   config.light_power)
+                state.extra = {**state.extra, "hit": hit}
+            else:
+                state.z = direct_phasor(s.range_mm, s.normal, s.albedo,
+                                        s.intrinsics.ray_directions(), config.mod_freq_hz,
+                                        config.light_power)
             return
         cfg = effects[name]
         stage = EFFECTS[name].stage
         if stage == "geometry":
             move = _geometry_move(name, cfg.params, self.motion) if cfg.enabled else None
             if move is not None:
-                state.surface = subpixel_move(state.surface, *move)
+                state.extra = {**state.extra, "moves": [*state.extra.get("moves", []), move]}
                 ctx.surface = ctx.samples = state.surface
                 ctx.true_range_mm = state.surface.range_mm
         elif name == "multipath":
             if cfg.enabled:
                 state.z = state.z + float(cfg.params["gain"]) * self.indirect(config)
+        elif name == "lens_scatter":
+            if cfg.enabled:
+                state.z = lens_scatter_fast(state.z, cfg.params)
+        elif name == "pixel_offset":
+            if cfg.enabled:
+                state.range_mm = pixel_offset_fast(state.range_mm, cfg.params,
+                                                   self.frame.intrinsics)
         elif stage in ("footprint", "phasor"):
             if cfg.enabled:
                 state.z = EFFECTS[name].apply(state.z, cfg.params, ctx)

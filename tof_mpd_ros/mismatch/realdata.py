@@ -18,7 +18,7 @@ range, so the frame is given the nominal 30 MHz (5 m ambiguity) of the simulated
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +26,7 @@ import numpy as np
 from ..camera import Intrinsics
 from ..errors import MismatchError
 from ..frame import DEFAULT_MOD_FREQ_HZ, ToFFrame
+from ..sim.tof import ToFConfig
 from ..sim.tof.config import DEFAULT_LIGHT_POWER
 
 DEFAULT_DIR = Path("/work/shared/realdata/azure_kinect_mug")
@@ -34,6 +35,22 @@ NFOV_UNBINNED_OFFSET = (192.0, 180.0)
 #: IR saturates here; saturated pixels are invalid
 IR_SATURATION = 65535
 PLANE_ALBEDO = 0.6
+#: light power of the simulated stand-in for the Kinect (amplitude·mm²): the cell's power
+#: scaled by (2 m / 0.3 m)², so the wall at ~2 m is as bright (and as noisy, ~2–3 mm) as the
+#: cell's table at 0.3 m
+KINECT_LIGHT_POWER = DEFAULT_LIGHT_POWER * (2000.0 / 300.0) ** 2
+
+
+def azure_kinect_config() -> ToFConfig:
+    """The nominal cell with the Kinect stand-in's light power (see ``KINECT_LIGHT_POWER``)."""
+    return replace(ToFConfig.nominal(), light_power=KINECT_LIGHT_POWER)
+
+
+def is_azure_kinect_dir(path: str | Path) -> bool:
+    """True for a folder laid out like ``DEFAULT_DIR`` (depth, IR and calibration)."""
+    p = Path(path)
+    return p.is_dir() and all((p / f).exists() for f in
+                              ("depth_000.npy", "ir_000.npy", "calibration.json"))
 
 
 @dataclass(frozen=True)
@@ -200,7 +217,7 @@ def plane_reference(range_mm: np.ndarray, intrinsics: Intrinsics, *, seed: int =
     rest = flat[~in1]
     plane2, in2 = ransac_plane(rest, rng, tol_mm=ransac_tol_mm)
     planes, counts = [], []
-    for own, other, pts_own in ((plane1, plane2, flat[in1]), (plane2, plane1, rest[in2])):
+    for other, pts_own in ((plane2, flat[in1]), (plane1, rest[in2])):
         far = np.abs(pts_own @ other[:3] + other[3]) > crease_margin_mm
         use = pts_own[far] if far.sum() >= 50 else pts_own
         planes.append(fit_plane(use))
@@ -255,12 +272,12 @@ def azure_kinect_frame(directory: str | Path = DEFAULT_DIR, *, downsample: int =
 
 def _to_sim_units(amplitude: np.ndarray, reference_mm: np.ndarray,
                   intrinsics: Intrinsics) -> np.ndarray:
-    """Scale raw IR so that the planes' median albedo under the simulator's light is
+    """Scale raw IR so that the planes' median albedo under ``KINECT_LIGHT_POWER`` is
     ``PLANE_ALBEDO`` (the sensor's gain is unknown; only ratios are physical)."""
     from ..sim.tof.reference import surface_from_reference
     surf = surface_from_reference(reference_mm, intrinsics, 1.0)
     cos = np.clip(-np.einsum("hwk,hwk->hw", surf.normal, intrinsics.ray_directions()), 0.05, 1)
-    unit = DEFAULT_LIGHT_POWER * cos / surf.range_mm ** 2
+    unit = KINECT_LIGHT_POWER * cos / surf.range_mm ** 2
     ratio = amplitude / unit
     scale = PLANE_ALBEDO / float(np.nanmedian(ratio[np.isfinite(ratio)]))
     return (amplitude * scale).astype(np.float32)

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import MismatchError
-from .analyse import Analysis
+from .analysis import Analysis
 from .locate import describe_stratum
 
 REPORT_JSON = "report.json"
