@@ -11,6 +11,7 @@ recorded agree. Exactly what the per-pixel linear calibration removes.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Mapping
 from typing import Any
 
@@ -46,6 +47,19 @@ def sensor_keys(intrinsics: Intrinsics) -> np.ndarray:
     return (dv.astype(np.uint64) << np.uint64(32)) | du.astype(np.uint64)
 
 
+@functools.lru_cache(maxsize=16)
+def _unit_normals(intrinsics: Intrinsics, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two independent (H, W) standard-normal fields (Box–Muller), cached per camera and seed:
+    every frame of a camera draws the same pattern, and fitting re-renders many frames."""
+    key = sensor_keys(intrinsics)
+    u1, u2 = (_uniform(seed, s, key) for s in range(2))
+    radius = np.sqrt(-2.0 * np.log(u1))
+    fields = (radius * np.cos(2.0 * np.pi * u2), radius * np.sin(2.0 * np.pi * u2))
+    for field in fields:
+        field.setflags(write=False)  # shared by every caller
+    return fields
+
+
 def offset_pattern(intrinsics: Intrinsics, seed: int, offset_mean_mm: float,
                    offset_std_mm: float, gain_std: float) -> tuple[np.ndarray, np.ndarray]:
     """The fixed pattern of the pixels of an image with ``intrinsics``.
@@ -54,12 +68,7 @@ def offset_pattern(intrinsics: Intrinsics, seed: int, offset_mean_mm: float,
         (H, W) float64 offsets in mm and (H, W) float64 gains (unitless); a pixel at the same
         offset from the principal point gets the same values in any crop.
     """
-    key = sensor_keys(intrinsics)
-    # Box–Muller: two independent standard normals per pixel
-    u1, u2 = (_uniform(seed, s, key) for s in range(2))
-    radius = np.sqrt(-2.0 * np.log(u1))
-    n_offset = radius * np.cos(2.0 * np.pi * u2)
-    n_gain = radius * np.sin(2.0 * np.pi * u2)
+    n_offset, n_gain = _unit_normals(intrinsics, int(seed))
     return offset_mean_mm + offset_std_mm * n_offset, gain_std * n_gain
 
 
