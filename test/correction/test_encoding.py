@@ -143,3 +143,32 @@ def test_column_layout_holds_the_same_numbers() -> None:
     np.testing.assert_array_equal(cols.bin_amplitude.numpy()[ok],
                                   feats[:, 260:280].argmax(1).numpy()[ok])
     np.testing.assert_array_equal(cols.valid.numpy(), valid[0].numpy())
+
+
+def test_fast_path_kernels_hold_the_same_numbers() -> None:
+    from tof_mpd_ros.correction.encoding import encode_rows, frame_planes, plane_constants
+
+    for seed in (7, 8):
+        r, a = _random_frame(seed)
+        r[0, 1] = -3.0                               # invalid: range <= 0
+        a[2, 2] = np.inf                             # invalid: amplitude not finite
+        feats, valid = encode_frame(r, a, CFG)
+        h, w = r.shape
+        half = CFG.patch_size // 2
+        r_pad = np.full((h + 2 * half, w + 2 * half), np.nan, np.float32)
+        la_pad = np.full_like(r_pad, np.nan)
+        bins_r, bins_a = np.zeros(h * w, np.int32), np.zeros(h * w, np.int32)
+        ok = np.zeros((h, w), bool)
+        consts = plane_constants(CFG)
+        frame_planes(r.astype(np.float32), a.astype(np.float32), consts, CFG.n_bins, r_pad,
+                     la_pad, bins_r, bins_a, ok)
+        np.testing.assert_array_equal(ok, valid[0].numpy())
+        flat_ok = ok.reshape(-1)
+        np.testing.assert_array_equal(bins_r[flat_ok], feats[:, 240:260].argmax(1).numpy()[flat_ok])
+        np.testing.assert_array_equal(bins_a[flat_ok], feats[:, 260:280].argmax(1).numpy()[flat_ok])
+        assert not bins_r[~flat_ok].any() and not bins_a[~flat_ok].any()
+        out = np.full((h * w, 240), 99.0, np.float32)
+        for y0 in range(0, h, 3):                    # bands of 3 rows, the last one shorter
+            y1 = min(h, y0 + 3)
+            encode_rows(r_pad, la_pad, y0, y1, CFG.patch_size, consts, out[y0 * w:y1 * w])
+        np.testing.assert_array_equal(out, feats[:, :240].numpy())   # bit for bit

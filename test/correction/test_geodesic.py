@@ -195,3 +195,22 @@ def test_with_edges_it_denoises_boundaries_better_than_a_gaussian():
            for name, img in (("noisy", noisy), ("geodesic", geo), ("gaussian", gauss))}
     assert rms["geodesic"] < 0.5 * rms["noisy"]  # ~ 3 mm / sqrt(effective neighbours)
     assert rms["gaussian"] > 5 * rms["geodesic"]  # the Gaussian smears the 80 mm step
+
+
+def test_border_templates_equal_the_search():
+    # Large enough for the border templates (image >= 2r in both directions): sparse edges and
+    # holes, some near the borders and corners, must give exactly the searched lists.
+    rng = np.random.default_rng(7)
+    edges = np.zeros((34, 41), bool)
+    edges[3:15, 30] = True
+    edges[28, 5:19] = True
+    edges[1, 1] = True
+    valid = rng.random(edges.shape) > 0.01
+    valid[32, 39] = False
+    idx, dist = geodesic_neighbours(edges, valid, k=81)
+    ref_idx, ref_dist = _reference_knn(edges, valid, 81, 1.0)
+    np.testing.assert_array_equal(idx, ref_idx)
+    np.testing.assert_allclose(dist, ref_dist, rtol=1e-6)
+    from tof_mpd_ros.correction.geodesic import _border_templates
+    r, _, _, usable = _border_templates(81, 34, 41, 32.0)
+    assert r > 0 and usable.sum() == (2 * r + 1) ** 2      # the templates were in play

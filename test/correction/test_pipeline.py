@@ -145,3 +145,72 @@ def test_bfloat16_precision_stays_close(geodesic_stub) -> None:
     assert np.abs(f32.range_mm - b16.range_mm).max() < 0.1     # mm
     with pytest.raises(InputError, match="precision"):
         correct(model, r, a, precision="int8")
+
+
+def _torch_path(model: CorrectionModel, r: np.ndarray, a: np.ndarray):
+    """The torch path (column encoding + FusedPatchNets), which the GPU uses."""
+    from tof_mpd_ros.correction.encoding import encode_frame_columns
+    from tof_mpd_ros.correction.networks import FusedPatchNets
+    from tof_mpd_ros.correction.pipeline import CorrectionResult, _correct_one
+
+    a3 = a[None].astype(np.float32)
+    cal = model.calibration.apply(r[None], a3)
+    fused = FusedPatchNets(model.range_net, model.boundary_nets, model.encoding.patch_size,
+                           model.encoding.n_bins)
+    (enc,) = encode_frame_columns(cal, a3, model.encoding)
+    return CorrectionResult(*_correct_one(model, fused, enc, cal[0], True, True))
+
+
+def _edgy_model(h: int, w: int) -> CorrectionModel:
+    """Random F and G heads scaled so that G fires on depth steps (edges to filter across)."""
+    calib = IntrinsicCalibration(np.full((h, w), 2.0), np.ones((h, w)), np.zeros((h, w)),
+                                 np.ones((h, w), bool))
+    model = CorrectionModel.untrained(calib, EncodingConfig(amplitude_max=2.0), seed=1)
+    with torch.no_grad():
+        model.boundary_nets.first.weight.mul_(8.0)
+        model.range_net.layers[-1].weight.mul_(3.0)
+    return model
+
+
+def _edgy_frame(h: int, w: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:h, 0:w]
+    r = (400 + 0.3 * xx + rng.normal(0, 0.5, (h, w))).astype(np.float32)
+    r[(yy - h / 2) ** 2 + (xx - w / 3) ** 2 < (h / 4) ** 2] -= 80.0      # a disc in front
+    r[h // 3:, 2 * w // 3:] += 45.0                                        # a step behind
+    a = rng.uniform(0.3, 1.5, (h, w)).astype(np.float32)
+    r[rng.random((h, w)) < 0.02] = np.nan                                  # holes
+    a[0, :3] = 0.0
+    return r, a
+
+
+def test_fast_path_equals_torch_path_and_threads_do_not_matter() -> None:
+    h, w = 36, 44
+    model = _edgy_model(h, w)
+    for seed in (0, 1):
+        r, a = _edgy_frame(h, w, seed)
+        fast = correct(model, r, a)
+        slow = _torch_path(model, r, a)
+        assert fast.edges.any()
+        np.testing.assert_array_equal(fast.edges, slow.edges)
+        np.testing.assert_array_equal(fast.valid, slow.valid)
+        for name in ("range_mm", "range_f_mm", "calibrated_mm"):
+            x, y = getattr(fast, name), getattr(slow, name)
+            np.testing.assert_array_equal(np.isnan(x), np.isnan(y))
+            np.testing.assert_allclose(x, y, rtol=0, atol=1e-3, equal_nan=True)
+        np.testing.assert_allclose(fast.confidence, slow.confidence, rtol=0, atol=1e-5)
+        one = correct(model, r, a, threads=1)
+        for name in ("range_mm", "edges", "confidence", "range_f_mm"):
+            np.testing.assert_array_equal(getattr(one, name), getattr(fast, name))
+    with pytest.raises(InputError, match="threads"):
+        correct(model, r, a, threads=0)
+
+
+def test_fast_path_sees_weights_changed_in_place() -> None:
+    model = _model()
+    r, a = _frame(8)
+    before = correct(model, r, a, use_boundary=False)
+    with torch.no_grad():        # what an optimiser step or load_state_dict does
+        model.range_net.layers[-1].bias.add_(0.1)
+    after = correct(model, r, a, use_boundary=False)
+    np.testing.assert_allclose(after.range_mm - before.range_mm, 1.5, atol=1e-3)  # 15 * 0.1

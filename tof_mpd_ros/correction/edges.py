@@ -255,8 +255,25 @@ def edge_map_from_responses(scores: np.ndarray, *, low: float = 0.3,
     s = check_array("scores", scores, ndim=3, shape=(4, None, None), dtype_kind="fiu")
     _check_thresholds(low, high)
     s = np.nan_to_num(s.astype(np.float32, copy=False), nan=0.0, posinf=1.0, neginf=0.0)
-    group = np.argmax(s, axis=0)
-    best = np.max(s, axis=0)
+    return edge_map_from_best(np.max(s, axis=0), np.argmax(s, axis=0), low=low, high=high)
+
+
+def edge_map_from_best(best: np.ndarray, group: np.ndarray, *, low: float = 0.3,
+                       high: float = 0.6) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`edge_map_from_responses` from the per-pixel maximum and its group.
+
+    The fast path computes the maximum over the four heads (and the first head reaching it)
+    inside its network kernel and enters here, skipping the (4, H, W) score stack.
+
+    Args:
+        best: (H, W) float32 maximum edge probability over the groups, finite.
+        group: (H, W) integer group 0..3 of that maximum (the first one on ties).
+        low, high: hysteresis thresholds on the probability.
+
+    Returns:
+        edges, strength: as :func:`edge_map_from_responses`.
+    """
+    _check_thresholds(low, high)
     maxima = thin_staircases(non_maximum_suppression(best, group))
     edges = hysteresis(maxima, best, low, high)
     return edges, np.where(maxima, best, 0.0).astype(np.float32)

@@ -20,6 +20,9 @@ as the centre"); rows of invalid centres are all zero and flagged in the returne
 boundary networks use the first ``2 M`` = 240. :func:`encode_frame_columns` gives the same numbers
 in the layout of the fused inference path (offsets as rows, centre row kept at 0, bins as
 indices); training gathers patches of sampled pixels through the same :func:`encode_patches`.
+The CPU fast path (``pipeline.correct``) uses :func:`frame_planes` and :func:`encode_rows`:
+compiled kernels giving the same numbers bit for bit (float32 operations in the same order),
+written into preallocated buffers a band of rows at a time.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+import numba
 import numpy as np
 import torch
 import torch.nn.functional as tnf
@@ -317,3 +321,109 @@ def encode_frame_columns(range_mm: np.ndarray | torch.Tensor,
             centre_bins(ac, config.amplitude_min, config.amplitude_max, config.n_bins),
             valid[i]))
     return out
+
+
+# ---------------------------------------------------------------------------------------------
+# Compiled kernels of the CPU fast path (same float32 operations as the torch code above).
+
+
+def plane_constants(config: EncodingConfig) -> np.ndarray:
+    """(8,) float32 constants of :func:`frame_planes` / :func:`encode_rows`.
+
+    ``[D, 0.5 / D, L, 0.5 / L, range_min, n_bins / range span, amplitude_min,
+    n_bins / amplitude span]``, each rounded to float32 exactly as the torch code rounds them.
+    """
+    d, lc = f32(config.range_clip_mm), f32(config.amplitude_log_clip)
+    nb = config.n_bins
+    return np.array([d, f32(0.5 / d), lc, f32(0.5 / lc), f32(config.range_min_mm),
+                     f32(nb / (config.range_max_mm - config.range_min_mm)),
+                     f32(config.amplitude_min),
+                     f32(nb / (config.amplitude_max - config.amplitude_min))], np.float32)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _bin(value: float, lo: float, scale: float, n_bins: int) -> int:  # pragma: no cover
+    pos = (value - lo) * scale                    # float32 arithmetic, as centre_bins
+    if pos != pos:
+        return 0
+    return int(min(max(np.floor(pos), 0.0), n_bins - 1.0))
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def frame_planes(calibrated: np.ndarray, amplitude: np.ndarray, consts: np.ndarray,
+                 n_bins: int, r_pad: np.ndarray, la_pad: np.ndarray, bin_range: np.ndarray,
+                 bin_amplitude: np.ndarray, valid: np.ndarray) -> None:  # pragma: no cover
+    """Fill the per-frame planes of the fast path (see :func:`prepare_planes`, :func:`centre_bins`).
+
+    Args:
+        calibrated: (H, W) float32 calibrated range in mm.
+        amplitude: (H, W) float32 amplitude.
+        consts: :func:`plane_constants`.
+        n_bins: one-hot width.
+        r_pad, la_pad: (H + P - 1, W + P - 1) float32 outputs, range and log amplitude at
+            offset P // 2, NaN where invalid; the border must already hold NaN.
+        bin_range, bin_amplitude: (H * W,) int32 outputs, bin index (0 for invalid pixels).
+        valid: (H, W) bool output.
+    """
+    h, w = calibrated.shape
+    half = (r_pad.shape[0] - h) // 2
+    nan = np.float32(np.nan)
+    for y in range(h):
+        for x in range(w):
+            r = calibrated[y, x]
+            a = amplitude[y, x]
+            ok = np.isfinite(r) and np.isfinite(a) and r > 0 and a > 0
+            valid[y, x] = ok
+            i = y * w + x
+            if ok:
+                r_pad[y + half, x + half] = r
+                la_pad[y + half, x + half] = np.float32(math.log(np.float64(a)))
+                bin_range[i] = _bin(r, consts[4], consts[5], n_bins)
+                bin_amplitude[i] = _bin(a, consts[6], consts[7], n_bins)
+            else:
+                r_pad[y + half, x + half] = nan
+                la_pad[y + half, x + half] = nan
+                bin_range[i] = 0
+                bin_amplitude[i] = 0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def encode_rows(r_pad: np.ndarray, la_pad: np.ndarray, y0: int, y1: int, patch_size: int,
+                consts: np.ndarray, out: np.ndarray) -> None:  # pragma: no cover
+    """``[x_R x_A]`` of the pixels of rows [y0, y1), pixel-major, into ``out``.
+
+    The same float32 numbers as :func:`encode_patches` (``boundary_only=True``): difference,
+    clip, multiplication by the float32 reciprocal, NaN -> 0.
+
+    Args:
+        r_pad, la_pad: planes from :func:`frame_planes`.
+        y0, y1: row band.
+        patch_size: P.
+        consts: :func:`plane_constants`.
+        out: (>= (y1 - y0) * W, 2 M) float32, row ``(y - y0) * W + x`` for pixel (y, x).
+    """
+    p = patch_size
+    w = r_pad.shape[1] - p + 1
+    half = p // 2
+    m = p * p - 1
+    clip_r, scale_r, clip_a, scale_a = consts[0], consts[1], consts[2], consts[3]
+    zero = np.float32(0.0)
+    i = 0
+    for y in range(y0, y1):
+        for col in range(w):
+            row = out[i]
+            rc = r_pad[y + half, col + half]
+            ac = la_pad[y + half, col + half]
+            o = 0
+            for dy in range(p):
+                rs = r_pad[y + dy, col:col + p]
+                als = la_pad[y + dy, col:col + p]
+                for dx in range(p):
+                    if dy == half and dx == half:
+                        continue
+                    d = min(max(rs[dx] - rc, -clip_r), clip_r) * scale_r
+                    row[o] = d if d == d else zero
+                    e = min(max(als[dx] - ac, -clip_a), clip_a) * scale_a
+                    row[m + o] = e if e == e else zero
+                    o += 1
+            i += 1

@@ -32,38 +32,48 @@ precomputed table; Dijkstra then runs on a bucket queue over those ranks (O(1) p
 floating-point ties). Within one distance, pixels are ordered by flat index, so results are
 deterministic and tie-exact. Pixels whose template footprint (the K nearest offsets on an open
 grid) holds no edge, missing pixel or image border take that template instead of a search
-(provably the same list; ~60 % of a typical frame). Written in numba because neither scipy nor
+(provably the same list; ~60 % of a typical frame). Pixels near the image border whose
+footprint is cut by the border use a *border template* instead: the K nearest in-image offsets
+for their clipped distances to the four borders (one precomputed list per border class, cached
+per image size), valid by the same argument since a rectangle keeps octile distances (another
+~10 % of a frame, a quarter of the searches). Written in numba because neither scipy nor
 OpenCV offers a K-nearest geodesic search on a pixel grid with early stop
 (``scipy.sparse.csgraph.dijkstra`` computes whole rows; the tests use it as the reference).
 Kernels run in parallel over image rows (strided, since edges cluster), with work arrays
-allocated once per worker chunk, never per pixel. ``cache=True`` keeps the compiled kernels on
-disk next to this file, so only the first import on a machine pays the ~15 s compile, not every
-test run or node start (delete ``__pycache__`` if numba is upgraded and complains). Numba's
-``omp`` threading layer (GNU OpenMP, the one used here) is thread-safe but not fork-safe: a
-process that has run these kernels should start workers with ``spawn``/``forkserver``.
+allocated once per worker chunk, never per pixel: serial GIL-free numba kernels on
+``numba.get_num_threads()`` plain Python threads (:func:`_run_chunks`), not numba's OpenMP
+``prange``, so no idle OpenMP thread spins against torch's in the same process and the pool is
+reset in a forked child. ``cache=True`` keeps the compiled kernels on disk next to this file,
+so only the first import on a machine pays the ~15 s compile, not every test run or node start
+(delete ``__pycache__`` if numba is upgraded and complains).
 """
 
 from __future__ import annotations
 
+import functools
 import math
+import os
 import threading
+from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
-from numba import prange
 
 from ..errors import InputError
 from ..validation import check_array, check_same_shape
 
 DEFAULT_MAX_STEPS = 32.0
-# numba's fallback "workqueue" threading layer must not run two parallel kernels at once (the
-# usual "omp"/"tbb" layers may); the kernels are parallel inside, so serialising costs nothing.
+# Concurrent calls share the worker pool; one call at a time keeps each call's threads busy.
 _KERNEL_LOCK = threading.Lock()
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+if hasattr(os, "register_at_fork"):   # a forked child must not reuse the parent's dead threads
+    os.register_at_fork(after_in_child=_POOLS.clear)
 # (dy, dx, is_diagonal) of the 8 moves.
 _MOVES = np.array([[-1, -1, 1], [-1, 0, 0], [-1, 1, 1], [0, -1, 0], [0, 1, 0],
                    [1, -1, 1], [1, 0, 0], [1, 1, 1]], dtype=np.int64)
 
 
+@functools.lru_cache(maxsize=16)
 def _rank_table(max_steps: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Rank every path length ``a + b √2 <= max_steps`` (in steps) and its successors.
 
@@ -114,6 +124,13 @@ def _template(k: int, width: int,
     return dy * width + dx, ranks, dy, dx, bool((ranks >= 0).all())
 
 
+@functools.lru_cache(maxsize=16)
+def _template_for(k: int, width: int, max_steps: float
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, bool]:
+    """:func:`_template` for a search limit, cached (the same for every frame of a stream)."""
+    return _template(k, width, _rank_table(max_steps)[0])
+
+
 def _template_ok(obstacle: np.ndarray, dy: np.ndarray, dx: np.ndarray) -> np.ndarray:
     """(H, W) bool: the template footprint around the pixel is inside and obstacle-free.
 
@@ -133,6 +150,89 @@ def _template_ok(obstacle: np.ndarray, dy: np.ndarray, dx: np.ndarray) -> np.nda
         rows = slice(r + row, r + row + h)
         count += cum[rows, r + hi + 1:r + hi + 1 + w] - cum[rows, r + lo:r + lo + w]
     return count == 0
+
+
+@functools.lru_cache(maxsize=16)
+def _border_templates(k: int, h: int, w: int, max_steps: float
+                      ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """The K nearest in-image offsets of a pixel near the border, per border class.
+
+    A pixel's class is ``(cy, cx)`` in ``[0, 2r]²``: ``cy`` = its row if it is within ``r`` of
+    the top, ``2r - (distance to the bottom)`` if within ``r`` of the bottom, else ``r``
+    (likewise ``cx``); ``(r, r)`` is the open template's class. Within the image rectangle an
+    unobstructed octile shortest path never leaves the bounding box of its ends, so the same
+    exactness argument as the open template holds: when none of the class's K pixels is an
+    obstacle (edge or missing), they are the pixel's K nearest, at octile distance. ``r`` is
+    the smallest window radius exceeding every class's K-th distance.
+
+    Returns:
+        r: class window radius (0 = border templates unusable: image narrower than 2r).
+        offsets: (n_classes, k) int64 flat offsets in (distance, flat index) order.
+        ranks: (n_classes, k) int32 distance ranks.
+        usable: (n_classes,) bool.
+    """
+    rank_of = _rank_table(max_steps)[0]
+    empty = (0, np.zeros((0, k), np.int64), np.zeros((0, k), np.int32), np.zeros(0, bool))
+    r = math.ceil(math.sqrt(4.0 * k / math.pi)) + 1       # a quarter disc of k pixels fits
+    while True:
+        if h < 2 * r or w < 2 * r:
+            return empty
+        dy, dx = (g.ravel() for g in np.mgrid[-r:r + 1, -r:r + 1])
+        a = np.abs(np.abs(dy) - np.abs(dx))
+        b = np.minimum(np.abs(dy), np.abs(dx))
+        length = a + b * math.sqrt(2.0)
+        side = 2 * r + 1
+        offsets = np.zeros((side * side, k), np.int64)
+        ranks = np.full((side * side, k), -1, np.int32)
+        usable = np.zeros(side * side, bool)
+        too_small = False
+        everywhere = np.ones(dy.shape, bool)
+        for cy in range(side):
+            y_ok = (dy >= -cy) if cy < r else (dy <= 2 * r - cy) if cy > r else everywhere
+            for cx in range(side):
+                x_ok = (dx >= -cx) if cx < r else (dx <= 2 * r - cx) if cx > r else everywhere
+                cand = np.flatnonzero(y_ok & x_ok)
+                order = cand[np.lexsort((dy[cand] * w + dx[cand], length[cand]))][:k]
+                c = cy * side + cx
+                if order.size < k:
+                    continue
+                if length[order[-1]] >= r:   # pixels beyond the window could be as close
+                    too_small = True
+                    break
+                ai, bi = a[order], b[order]
+                if (ai >= rank_of.shape[0]).any() or (bi >= rank_of.shape[1]).any():
+                    continue                  # beyond the search limit: never a template
+                rk = rank_of[ai, bi]
+                if (rk < 0).any():
+                    continue
+                offsets[c] = dy[order] * w + dx[order]
+                ranks[c] = rk
+                usable[c] = True
+            if too_small:
+                break
+        if not too_small:
+            return r, offsets, ranks, usable
+        r += 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _border_class(p, h, w, r, cls_ok, cls_off, obstacle):  # pragma: no cover
+    """Border class of pixel ``p`` when its border template applies (clear footprint), else -1."""
+    if cls_ok.shape[0] == 0:
+        return -1
+    y = p // w
+    x = p - y * w
+    cy = y if y < r else (2 * r - (h - 1 - y) if h - 1 - y < r else r)
+    cx = x if x < r else (2 * r - (w - 1 - x) if w - 1 - x < r else r)
+    if cy == r and cx == r:
+        return -1
+    c = cy * (2 * r + 1) + cx
+    if not cls_ok[c]:
+        return -1
+    for i in range(cls_off.shape[1]):
+        if obstacle[p + cls_off[c, i]]:
+            return -1
+    return c
 
 
 def _allowed_moves(edge: np.ndarray) -> np.ndarray:
@@ -223,14 +323,15 @@ def _knn_one(src, moves_ok, move_off, move_diag, valid, k, next_axis, next_diag,
     return n_out
 
 
-@numba.njit(cache=True, parallel=True)
-def _knn_all(g, n_chunks, out_idx, out_rank):
-    """K nearest valid pixels of every pixel (rows strided over ``n_chunks`` workers)."""
+@numba.njit(cache=True, nogil=True)
+def _knn_all(first, stride, n_chunks, g, out_idx, out_rank):
+    """K nearest valid pixels of the pixels of chunks ``first, first + stride, ...`` (chunk c
+    = rows c, c + n_chunks, ...)."""
     (h, w, moves_ok, move_off, move_diag, valid, k, next_axis, next_diag, pool_size, tmpl_ok,
-     tmpl_off, tmpl_rank) = g
+     tmpl_off, tmpl_rank, obstacle, b_r, cls_ok, cls_off, cls_rank) = g
     n = h * w
     n_ranks = next_axis.shape[0]
-    for c in prange(n_chunks):
+    for c in range(first, n_chunks, stride):
         # Work arrays once per chunk, never per pixel.
         state = np.zeros(n, np.int32)  # stamps must start below every source's stamp
         bstamp = np.zeros(n_ranks, np.int32)
@@ -245,20 +346,27 @@ def _knn_all(g, n_chunks, out_idx, out_rank):
                     for i in range(k):
                         out_idx[p, i] = p + tmpl_off[i]
                         out_rank[p, i] = tmpl_rank[i]
+                    continue
+                cls = _border_class(p, h, w, b_r, cls_ok, cls_off, obstacle)
+                if cls >= 0:
+                    for i in range(k):
+                        out_idx[p, i] = p + cls_off[cls, i]
+                        out_rank[p, i] = cls_rank[cls, i]
                 else:
                     _knn_one(p, moves_ok, move_off, move_diag, valid, k, next_axis, next_diag,
                              state, rank, bhead, bstamp, pool_node, pool_next, cand, out_idx[p],
                              out_rank[p])
 
 
-@numba.njit(cache=True, parallel=True)
-def _filter_all(g, n_chunks, values, weight_of_rank, skip, out):
-    """Fused search + weighted mean: out[p] = Σ w R / Σ w over p's K nearest, NaN if none."""
+@numba.njit(cache=True, nogil=True)
+def _filter_all(first, stride, n_chunks, g, values, weight_of_rank, skip, out):
+    """Fused search + weighted mean: out[p] = Σ w R / Σ w over p's K nearest, NaN if none
+    (chunks ``first, first + stride, ...`` as :func:`_knn_all`)."""
     (h, w, moves_ok, move_off, move_diag, valid, k, next_axis, next_diag, pool_size, tmpl_ok,
-     tmpl_off, tmpl_rank) = g
+     tmpl_off, tmpl_rank, obstacle, b_r, cls_ok, cls_off, cls_rank) = g
     n = h * w
     n_ranks = next_axis.shape[0]
-    for c in prange(n_chunks):
+    for c in range(first, n_chunks, stride):
         state = np.zeros(n, np.int32)  # stamps must start below every source's stamp
         bstamp = np.zeros(n_ranks, np.int32)
         rank = np.empty(n, np.int32)  # the rest is only read where a stamp says it was written
@@ -279,6 +387,14 @@ def _filter_all(g, n_chunks, values, weight_of_rank, skip, out):
                     for i in range(k):
                         wgt = weight_of_rank[tmpl_rank[i]]
                         num += wgt * values[p + tmpl_off[i]]
+                        den += wgt
+                    out[p] = num / den
+                    continue
+                cls = _border_class(p, h, w, b_r, cls_ok, cls_off, obstacle)
+                if cls >= 0:
+                    for i in range(k):
+                        wgt = weight_of_rank[cls_rank[cls, i]]
+                        num += wgt * values[p + cls_off[cls, i]]
                         den += wgt
                 else:
                     m = _knn_one(p, moves_ok, move_off, move_diag, valid, k, next_axis,
@@ -308,21 +424,48 @@ def _prepare(edges: np.ndarray, valid: np.ndarray, k: int, step: float,
     h, w = e.shape
     edge = e.astype(bool)
     ok = v.astype(bool)
-    rank_of, length, next_axis, next_diag = _rank_table(max_steps)
-    off, trank, tdy, tdx, usable = _template(int(k), w, rank_of)
-    tmpl_ok = (_template_ok(edge | ~ok, tdy, tdx) & usable).ravel()
+    _rank_of, length, next_axis, next_diag = _rank_table(float(max_steps))
+    off, trank, tdy, tdx, usable = _template_for(int(k), w, float(max_steps))
+    obstacle = edge | ~ok
+    tmpl_ok = (_template_ok(obstacle, tdy, tdx) & usable).ravel()
+    b_r, cls_off, cls_rank, cls_ok = _border_templates(int(k), h, w, float(max_steps))
     move_off = (_MOVES[:, 0] * w + _MOVES[:, 1]).astype(np.int64)
     move_diag = _MOVES[:, 2].astype(np.bool_)
     side = 2 * math.floor(max_steps) + 1
     pool_size = 8 * min(h * w, side * side) + 8  # each settled pixel pushes at most 8 entries
     graph = (h, w, _allowed_moves(edge).ravel(), move_off, move_diag, np.ascontiguousarray(
         ok.ravel()), int(k), next_axis, next_diag, pool_size, tmpl_ok, off.astype(np.int64),
-        trank)
+        trank, np.ascontiguousarray(obstacle.ravel()), int(b_r), cls_ok, cls_off, cls_rank)
     return graph, length
 
 
 def _n_chunks(h: int) -> int:
     return max(1, min(h, 4 * numba.get_num_threads()))  # several per thread: edges cluster
+
+
+def _run_chunks(kernel: object, n_chunks: int, *args: object) -> None:
+    """Run ``kernel(first, stride, n_chunks, *args)`` on ``numba.get_num_threads()`` threads.
+
+    The kernels are serial, GIL-free numba functions; the chunks are spread over plain Python
+    threads (the caller plus a pool) rather than numba's OpenMP ``prange``, so no OpenMP team
+    exists whose idle threads could spin against torch's (whatever OMP_WAIT_POLICY libgomp saw
+    when it was loaded) and the thread count follows ``numba.set_num_threads``.
+    """
+    workers = max(1, min(numba.get_num_threads(), n_chunks))
+    with _KERNEL_LOCK:
+        if workers == 1:
+            kernel(0, 1, n_chunks, *args)
+            return
+        pool = _POOLS.get(workers)
+        if pool is None:
+            pool = _POOLS[workers] = ThreadPoolExecutor(max_workers=workers - 1,
+                                                        thread_name_prefix="tof-mpd-geodesic")
+        futures = [pool.submit(kernel, t, workers, n_chunks, *args) for t in range(1, workers)]
+        try:
+            kernel(0, workers, n_chunks, *args)
+        finally:
+            for f in futures:
+                f.result()
 
 
 def geodesic_neighbours(edges: np.ndarray, valid: np.ndarray, *, k: int = 81, step: float = 1.0,
@@ -345,8 +488,7 @@ def geodesic_neighbours(edges: np.ndarray, valid: np.ndarray, *, k: int = 81, st
     n = graph[0] * graph[1]
     idx = np.full((n, k), -1, np.int32)
     rank = np.full((n, k), -1, np.int32)
-    with _KERNEL_LOCK:
-        _knn_all(graph, _n_chunks(graph[0]), idx, rank)
+    _run_chunks(_knn_all, _n_chunks(graph[0]), graph, idx, rank)
     lengths = np.append(length * step, np.inf).astype(np.float32)  # rank -1 -> inf
     return idx, lengths[rank]
 
@@ -418,7 +560,7 @@ def geodesic_filter(range_mm: np.ndarray, edges: np.ndarray, *, k: int = 81, sig
     # Edge pixels are snapped afterwards; missing ones are only filled on request.
     skip = e | ~valid if not fill_missing else e
     out = np.empty(r.size, np.float64)
-    with _KERNEL_LOCK:
-        _filter_all(graph, _n_chunks(r.shape[0]), values, weight_of_rank, skip.ravel(), out)
+    _run_chunks(_filter_all, _n_chunks(r.shape[0]), graph, values, weight_of_rank,
+                skip.ravel(), out)
     filtered = out.reshape(r.shape)
     return _snap_edge_pixels(filtered, r, e, fill_missing)

@@ -14,10 +14,37 @@
 
 Either network can be switched off for the paper's component analysis. Invalid pixels (NaN, inf,
 range or amplitude <= 0) are NaN in every range output and 0 in ``confidence``.
+
+On the CPU (the default) steps 2-4 run on the **fast path** (issue 8), a :class:`_FastEngine`
+cached per model state, shape and precision:
+
+* compiled kernels fill NaN-padded range / log-amplitude planes and the one-hot bins into
+  preallocated buffers (``encoding.frame_planes``);
+* the frame is cut into bands of ~1440 pixels; ``threads`` worker threads (default: torch's
+  thread count, capped by the usable CPUs) take bands in turn and, per band, encode the pixels
+  pixel-major into a cache-resident buffer (``encoding.encode_rows``), run one oneDNN GEMM for
+  the first layers of F and the four G heads, and one compiled kernel for the rest of both
+  networks (``networks.FastPatchNets``), which also reduces the four heads to the per-pixel
+  maximum and its group. Workers run torch with 1 intra-op thread each (set for the call and
+  restored), so the two levels of threading never stack; numba's kernels release the GIL;
+* NMS + hysteresis (``edges.edge_map_from_best``) and the geodesic filter (serial numba
+  kernels on ``numba.get_num_threads()`` Python threads). No OpenMP team runs anywhere in the
+  fast path, so no idle OpenMP thread spins against the working ones whatever wait policy
+  libgomp was loaded with.
+
+The fast path computes the same numbers as the torch path and as the straightforward reference
+(``reference_pipeline``): the same edges and the corrected range within ~1e-4 mm (float32
+summation order only; measured 6.1e-5 mm, one float32 ulp at 256-512 mm).
+``precision="bfloat16"`` is opt-in and misses that agreement (see ``FastPatchNets``).
+Other devices use the torch path (:class:`~.networks.FusedPatchNets` over the column encoding).
 """
 
 from __future__ import annotations
 
+import os
+import threading
+import weakref
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -27,8 +54,19 @@ import torch
 from ..errors import InputError
 from ..validation import check_array
 from .calibration import IntrinsicCalibration
-from .encoding import ColumnEncoding, EncodingConfig, encode_frame_columns
-from .networks import BoundaryNets, FusedPatchNets, RangeRecoveryNet
+from .encoding import (
+    ColumnEncoding,
+    EncodingConfig,
+    encode_frame_columns,
+    encode_rows,
+    frame_planes,
+    plane_constants,
+)
+from .networks import BoundaryNets, FastPatchNets, FusedPatchNets, RangeRecoveryNet
+
+# Pixels per band of the fast path: the band's encodings (1440 x 240 float32, 1.4 MB) and the
+# GEMM output (200 x 1440) stay in L2/L3 between the encoding, the GEMM and the small layers.
+BAND_PIXELS = 1440
 
 
 @dataclass(frozen=True)
@@ -148,6 +186,7 @@ def correct(
     use_range_net: bool = True,
     use_boundary: bool = True,
     precision: str = "float32",
+    threads: int | None = None,
 ) -> CorrectionResult:
     """Remove multipath distortion from one frame or a batch of frames.
 
@@ -158,32 +197,201 @@ def correct(
         device: torch device for the networks (CPU default; GPU optional).
         use_range_net: apply F (off: R_F = R, "geodesic filtering alone").
         use_boundary: apply G + geodesic filtering (off: R-hat = R_F, "F alone").
-        precision: ``"float32"`` or ``"bfloat16"`` for the networks' first-layer GEMMs (see
-            :class:`~tof_mpd_ros.correction.networks.FusedPatchNets`).
+        precision: ``"float32"`` (default: matches the reference within 1e-3 mm) or
+            ``"bfloat16"`` (opt-in, faster first-layer GEMMs on AVX512-BF16/AMX CPUs, F off by
+            a few hundredths of a mm; see :class:`~.networks.FastPatchNets`).
+        threads: CPU fast path worker threads (default: torch's thread count, capped by the
+            usable CPUs).
 
     Returns:
         A :class:`CorrectionResult` shaped like the input.
 
     Raises:
-        InputError: see :func:`check_frame_pair`; an unknown ``precision``.
+        InputError: see :func:`check_frame_pair`; an unknown ``precision``; ``threads`` < 1.
     """
     r, a = check_frame_pair(model.shape, range_mm, amplitude)
+    if precision not in ("float32", "bfloat16"):
+        raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
     single = r.ndim == 2
     r3 = r[None] if single else r
     a3 = (a[None] if single else a).astype(np.float32, copy=False)
     calibrated = model.calibration.apply(r3, a3)
     dev = torch.device(device)
-    model.to(dev)
-    fused = FusedPatchNets(model.range_net, model.boundary_nets, model.encoding.patch_size,
-                           model.encoding.n_bins, precision)
-    encodings = encode_frame_columns(calibrated, a3, model.encoding, device=dev)
-    parts = [_correct_one(model, fused, enc, calibrated[i], use_range_net, use_boundary)
-             for i, enc in enumerate(encodings)]
+    if dev.type == "cpu":
+        if any(p.device != dev for p in (*model.range_net.parameters(),
+                                         *model.boundary_nets.parameters())):
+            model.to(dev)
+        engine = _engine(model, precision, _worker_count(threads))
+        parts = [engine.correct(calibrated[i], a3[i], use_range_net, use_boundary,
+                                model.geodesic) for i in range(r3.shape[0])]
+    else:
+        model.to(dev)
+        fused = FusedPatchNets(model.range_net, model.boundary_nets, model.encoding.patch_size,
+                               model.encoding.n_bins, precision)
+        encodings = encode_frame_columns(calibrated, a3, model.encoding, device=dev)
+        parts = [_correct_one(model, fused, enc, calibrated[i], use_range_net, use_boundary)
+                 for i, enc in enumerate(encodings)]
     fields = [np.stack(x) for x in zip(*parts, strict=True)]
     result = CorrectionResult(*fields)
     if single:
         result = CorrectionResult(*(x[0] for x in fields))
     return result
+
+
+def _worker_count(threads: int | None) -> int:
+    """Fast-path workers: ``threads``, or torch's thread count capped by the usable CPUs."""
+    if threads is not None:
+        if int(threads) < 1:
+            raise InputError(f"threads must be >= 1, got {threads}")
+        return int(threads)
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, min(torch.get_num_threads(), usable or 1))
+
+
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+_POOLS_LOCK = threading.Lock()
+if hasattr(os, "register_at_fork"):   # a forked child must not reuse the parent's dead threads
+    os.register_at_fork(after_in_child=_POOLS.clear)
+# id(model) -> (weak reference to the model, cache key, engine).
+_ENGINES: dict[int, tuple[weakref.ref, tuple, _FastEngine]] = {}
+
+
+def _pool(workers: int) -> ThreadPoolExecutor:
+    """A process-wide pool of ``workers - 1`` threads (the caller is the last worker)."""
+    with _POOLS_LOCK:
+        pool = _POOLS.get(workers)
+        if pool is None:
+            pool = _POOLS[workers] = ThreadPoolExecutor(
+                max_workers=workers - 1, thread_name_prefix="tof-mpd-correct")
+        return pool
+
+
+def _model_key(model: CorrectionModel, precision: str, workers: int) -> tuple:
+    """What the engine depends on: network tensors (identity and in-place version), shape..."""
+    params = [*model.range_net.parameters(), *model.boundary_nets.parameters()]
+    return (model.shape, model.encoding, precision, workers,
+            float(model.range_net.target_clip_mm),
+            tuple((id(p), p.data_ptr(), p._version) for p in params))
+
+
+def _engine(model: CorrectionModel, precision: str, workers: int) -> _FastEngine:
+    """The cached fast-path engine of ``model`` (rebuilt when its weights change in place)."""
+    key = _model_key(model, precision, workers)
+    with _POOLS_LOCK:
+        entry = _ENGINES.get(id(model))
+        if entry is not None and entry[0]() is model and entry[1] == key:
+            return entry[2]
+    engine = _FastEngine(model, precision, workers)
+    with _POOLS_LOCK:
+        mid = id(model)
+        _ENGINES[mid] = (weakref.ref(model, lambda _ref: _ENGINES.pop(mid, None)), key, engine)
+    return engine
+
+
+class _FastEngine:
+    """Fused weights and every buffer of the CPU fast path for one model state and shape.
+
+    Nothing is allocated per frame but the returned arrays (and the GEMM's band output, which
+    the allocator recycles). One frame at a time (a lock serialises concurrent callers).
+    """
+
+    def __init__(self, model: CorrectionModel, precision: str, workers: int) -> None:
+        h, w = model.shape
+        enc = model.encoding
+        self.shape = (h, w)
+        self.patch_size = enc.patch_size
+        self.n_bins = enc.n_bins
+        self.nets = FastPatchNets(model.range_net, model.boundary_nets, enc.patch_size,
+                                  enc.n_bins, precision)
+        self.consts = plane_constants(enc)
+        half = enc.patch_size // 2
+        self.r_pad = np.full((h + 2 * half, w + 2 * half), np.nan, np.float32)
+        self.la_pad = np.full_like(self.r_pad, np.nan)
+        self.bin_range = np.zeros(h * w, np.int32)
+        self.bin_amplitude = np.zeros(h * w, np.int32)
+        self.valid = np.zeros((h, w), bool)
+        self.corr = np.zeros(h * w, np.float32)
+        self.best = np.zeros(h * w, np.float32)
+        self.group = np.zeros(h * w, np.int8)
+        rows = max(1, BAND_PIXELS // w)
+        self.bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
+        self.workers = max(1, min(workers, len(self.bands)))
+        self.x = [torch.empty((rows * w, self.nets.n_inputs)) for _ in range(self.workers)]
+        self.scratch = [self.nets.scratch() for _ in range(self.workers)]
+        self.lock = threading.Lock()
+
+    def _work(self, t: int, do_f: bool, do_g: bool) -> None:
+        """Worker ``t``: bands t, t + workers, ... (encode, GEMM, small layers)."""
+        w = self.shape[1]
+        x = self.x[t]
+        xn = x.numpy()
+        valid = self.valid.reshape(-1)
+        for y0, y1 in self.bands[t::self.workers]:
+            n = (y1 - y0) * w
+            encode_rows(self.r_pad, self.la_pad, y0, y1, self.patch_size, self.consts, xn)
+            first = self.nets.first_layer(x[:n])
+            self.nets.heads(first, n, y0 * w, self.bin_range, self.bin_amplitude, valid, do_f,
+                            do_g, self.corr, self.best, self.group, self.scratch[t])
+
+    def networks(self, do_f: bool, do_g: bool) -> None:
+        """F and G over the whole frame, ``workers`` threads with 1 torch thread each."""
+        saved = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            if self.workers == 1:
+                self._work(0, do_f, do_g)
+                return
+            pool = _pool(self.workers)
+            futures = [pool.submit(_single_threaded, self._work, t, do_f, do_g)
+                       for t in range(1, self.workers)]
+            try:
+                self._work(0, do_f, do_g)
+            finally:   # never leave a worker writing into the buffers after returning
+                for f in futures:
+                    f.result()
+        finally:
+            torch.set_num_threads(saved)
+
+    def correct(self, calibrated: np.ndarray, amplitude: np.ndarray, use_f: bool, use_g: bool,
+                geodesic: GeodesicParams) -> tuple[np.ndarray, ...]:
+        """One frame: (range, edges, confidence, calibrated, range_f, valid), each (H, W)."""
+        h, w = self.shape
+        nan = np.float32(np.nan)
+        with self.lock:
+            frame_planes(np.ascontiguousarray(calibrated, np.float32),
+                         np.ascontiguousarray(amplitude, np.float32), self.consts, self.n_bins,
+                         self.r_pad, self.la_pad, self.bin_range, self.bin_amplitude,
+                         self.valid)
+            valid = self.valid.copy()
+            calib = np.where(valid, calibrated, nan).astype(np.float32)
+            if not (use_f or use_g):
+                return (calib, np.zeros((h, w), bool), valid.astype(np.float32), calib, calib,
+                        valid)
+            self.networks(use_f, use_g)
+            range_f = calib
+            if use_f:
+                range_f = (calib + self.corr.reshape(h, w)).astype(np.float32)
+            if not use_g:
+                return (range_f, np.zeros((h, w), bool), valid.astype(np.float32), calib,
+                        range_f, valid)
+            best = self.best.reshape(h, w).copy()
+            group = self.group.reshape(h, w).copy()
+        confidence = np.where(valid, np.float32(1.0) - best, np.float32(0.0)).astype(np.float32)
+        edges, filtered = _filter_from_best(geodesic, range_f, best, group)
+        final = np.where(valid, filtered, nan).astype(np.float32)
+        return final, edges, confidence, calib, range_f, valid
+
+
+def _single_threaded(fn: Any, *args: Any) -> None:
+    """Run ``fn(*args)`` with torch limited to 1 intra-op thread in this (worker) thread.
+
+    Called unconditionally: besides torch's process-wide setting, ``set_num_threads`` sets the
+    calling thread's OpenMP thread count, which oneDNN reads; a fresh pool thread otherwise keeps
+    OpenMP's default (all cores) and every worker's GEMM would start its own team (measured:
+    2 workers x 2 OpenMP threads on 2 cores, no wall-clock gain over 1 worker).
+    """
+    torch.set_num_threads(1)
+    fn(*args)
 
 
 def _correct_one(model: CorrectionModel, fused: FusedPatchNets, enc: ColumnEncoding,
@@ -209,6 +417,18 @@ def _correct_one(model: CorrectionModel, fused: FusedPatchNets, enc: ColumnEncod
     edges, filtered = _filter_one(model.geodesic, range_f, scores)
     final = np.where(valid, filtered, nan).astype(np.float32)
     return final, edges, confidence, calib, range_f, valid
+
+
+def _filter_from_best(params: GeodesicParams, range_f: np.ndarray, best: np.ndarray,
+                      group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Edge map from the heads' maximum and its group, then the geodesic filter of R_F."""
+    from . import edges as edge_module
+    from . import geodesic
+
+    edge_map, _strength = edge_module.edge_map_from_best(best, group)
+    filtered = geodesic.geodesic_filter(range_f, edge_map, k=params.k, sigma=params.sigma,
+                                        step=params.step)
+    return np.asarray(edge_map, bool), np.asarray(filtered, np.float32)
 
 
 def _filter_one(params: GeodesicParams, range_f: np.ndarray, probs: np.ndarray
