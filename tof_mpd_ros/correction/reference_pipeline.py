@@ -10,8 +10,10 @@ Same maths as the production path, written to be read and checked rather than to
 3. **F** and each of the **4 G heads**: plain matrix-vector products per pixel with the model's
    weights, in float64 (``relu(W x + b)`` layer after layer, F's one-hot terms as part of the
    280-vector, G's edge probability ``softmax(logits)[1]``), rounded to float32 at the end;
-4. **edges**: max over the heads -> :func:`.edges.edge_map_from_responses` (NMS, staircase
-   thinning, hysteresis; the same function as production: it *is* the definition);
+4. **edges**: the (4, H, W) head probabilities -> :func:`.edges.edge_map_from_responses`
+   (max over the heads, NMS, staircase thinning, hysteresis; it *is* the definition, so it is
+   reused, not rewritten; the CPU fast path enters the same code through
+   ``edge_map_from_best`` with the maximum and its group);
 5. **geodesic filter**: a textbook Dijkstra per pixel with :mod:`heapq` on the graph of
    :mod:`.geodesic` (8-connected, axis step 1 and diagonal √2, no path enters an edge pixel, a
    diagonal move is blocked when both corner pixels it cuts are edges, missing pixels may be
