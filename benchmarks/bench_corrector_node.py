@@ -37,6 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from bench_machine import cpu_model
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # run from a checkout without installing
@@ -44,17 +45,6 @@ if str(REPO) not in sys.path:  # run from a checkout without installing
 CROP = (140, 180)  # (H, W): the paper's crop, which is also the published frame here
 OUTPUT = "/tof/depth_corrected/image"
 
-
-def cpu_model() -> str:
-    """CPU model name from /proc/cpuinfo (falls back to platform.processor())."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def synthetic_frame(seed: int = 0) -> tuple[np.ndarray, np.ndarray, object]:

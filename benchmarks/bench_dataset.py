@@ -44,6 +44,7 @@ from typing import Any
 
 import numba
 import numpy as np
+from bench_machine import cpu_model
 
 from tof_mpd_ros.sim import raycast
 from tof_mpd_ros.sim import structured_light as sl
@@ -55,18 +56,6 @@ from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import make_scene
 from tof_mpd_ros.sim.tof import render_tof
 from tof_mpd_ros.sim.viewpoints import ViewpointConfig, plan_viewpoints
-
-
-def cpu_model() -> str:
-    """CPU model name from /proc/cpuinfo (falls back to platform.processor())."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 class Timer:

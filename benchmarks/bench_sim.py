@@ -24,6 +24,7 @@ import time
 
 import numba
 import numpy as np
+from bench_machine import cpu_model
 
 from tof_mpd_ros.camera import PAPER_CROP, Intrinsics
 from tof_mpd_ros.sim.raycast import render_surface
@@ -35,17 +36,6 @@ from tof_mpd_ros.sim.viewpoints import plan_viewpoints
 
 SUPERSAMPLE = 3
 
-
-def cpu_model() -> str:
-    """CPU model name from /proc/cpuinfo (falls back to platform.processor())."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def timed(fn, repeats: int) -> float:
