@@ -29,6 +29,12 @@ def spin_node(rclpy, node_factory: Callable[[], object], argv: Sequence[str]) ->
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except RuntimeError:
+        # A SIGINT can shut the context down while the executor is building its wait set; rclpy
+        # then raises RCLError ("context is not valid") instead of ExternalShutdownException.
+        # That is a normal stop; anything raised while the context is still valid is not.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             exit_code = int(getattr(node, "exit_code", 0))
