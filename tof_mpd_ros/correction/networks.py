@@ -181,6 +181,20 @@ def boundary_scores(features: torch.Tensor, nets: BoundaryNets) -> torch.Tensor:
     return nets.probabilities(features)
 
 
+def _check_fusable(range_net: RangeRecoveryNet, boundary_nets: BoundaryNets, patch_size: int,
+                   n_bins: int, precision: str) -> int:
+    """Neighbours per patch (``patch_size**2 - 1``); raise InputError unless F and G fit one
+    ``patch_size``/``n_bins`` encoding and ``precision`` is known (shared by the fused paths)."""
+    if precision not in ("float32", "bfloat16"):
+        raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
+    m = patch_size * patch_size - 1
+    if range_net.n_features != 2 * m + 2 * n_bins or boundary_nets.n_features != 2 * m:
+        raise InputError(f"networks ({range_net.n_features}, {boundary_nets.n_features} "
+                         f"inputs) do not fit a {patch_size}x{patch_size}, {n_bins}-bin "
+                         "encoding")
+    return m
+
+
 class FusedPatchNets:
     """Inference-only fusion of F and the four G heads over the column encoding.
 
@@ -207,13 +221,7 @@ class FusedPatchNets:
 
     def __init__(self, range_net: RangeRecoveryNet, boundary_nets: BoundaryNets,
                  patch_size: int, n_bins: int, precision: str = "float32") -> None:
-        if precision not in ("float32", "bfloat16"):
-            raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
-        m = patch_size * patch_size - 1
-        if range_net.n_features != 2 * m + 2 * n_bins or boundary_nets.n_features != 2 * m:
-            raise InputError(f"networks ({range_net.n_features}, {boundary_nets.n_features} "
-                             f"inputs) do not fit a {patch_size}x{patch_size}, {n_bins}-bin "
-                             "encoding")
+        m = _check_fusable(range_net, boundary_nets, patch_size, n_bins, precision)
         dtype = torch.bfloat16 if precision == "bfloat16" else torch.float32
         w_f = range_net.layers[0].weight.detach().float()
         w_g = boundary_nets.first.weight.detach().float()
@@ -461,13 +469,7 @@ class FastPatchNets:
     def __init__(self, range_net: RangeRecoveryNet, boundary_nets: BoundaryNets,
                  patch_size: int, n_bins: int, precision: str = "float32",
                  chunk: int = 256) -> None:
-        if precision not in ("float32", "bfloat16"):
-            raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
-        m = patch_size * patch_size - 1
-        if range_net.n_features != 2 * m + 2 * n_bins or boundary_nets.n_features != 2 * m:
-            raise InputError(f"networks ({range_net.n_features}, {boundary_nets.n_features} "
-                             f"inputs) do not fit a {patch_size}x{patch_size}, {n_bins}-bin "
-                             "encoding")
+        m = _check_fusable(range_net, boundary_nets, patch_size, n_bins, precision)
 
         def np32(t: torch.Tensor) -> np.ndarray:
             return np.ascontiguousarray(t.detach().cpu().float().numpy())
