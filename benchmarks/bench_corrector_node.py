@@ -144,7 +144,8 @@ def measure(rate: float, args: argparse.Namespace, weights: Path, log_dir: str) 
     log = open(Path(log_dir) / f"corrector_{rate:g}hz.log", "w")
     corrector = subprocess.Popen(
         [sys.executable, "-m", "tof_mpd_ros.nodes.corrector", "--ros-args",
-         "-p", f"weights_path:={weights}", "-p", "diagnostics_period_s:=0.5"],
+         "-p", f"weights_path:={weights}", "-p", "diagnostics_period_s:=0.5",
+         "-p", f"threads:={args.threads}"],
         env=env, stdout=log, stderr=subprocess.STDOUT)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=args.domain_id)
@@ -224,6 +225,8 @@ def main() -> None:
     parser.add_argument("--window", default="180x140", help="WxH processed by the default "
                         "untrained model (the published frame stays 180x140): a small window "
                         "shows what the node itself sustains")
+    parser.add_argument("--threads", type=int, default=1, help="the node's threads parameter "
+                        "(default 1, the node's default)")
     parser.add_argument("--json", help="also write the numbers to this JSON file")
     parser.add_argument("--role", choices=("listener", "publisher"), default="listener",
                         help=argparse.SUPPRESS)
@@ -249,10 +252,10 @@ def main() -> None:
         win_w, win_h = (int(x) for x in args.window.lower().split("x"))
         weights = save_weights(Path(log_dir) / "untrained.npz", CorrectionModel.untrained(
             IntrinsicCalibration.identity(win_h, win_w)))
-    # The same frame corrected in this process, with the node's default of one thread.
+    # The same frame corrected in this process, with the node's thread count.
     depth_m, amplitude, k = synthetic_frame()
     model = load_weights(weights)
-    stream = DepthStreamCorrector(model, threads=1)
+    stream = DepthStreamCorrector(model, threads=args.threads)
     times = []
     for _ in range(12):
         t0 = time.perf_counter()
@@ -269,7 +272,8 @@ def main() -> None:
     print(f"machine: {machine['cpu']}, {machine['cores']} cores, load average "
           f"{machine['load_average_1_5_15']} before / {machine['load_average_after']} after")
     print(f"frame: {CROP[1]}x{CROP[0]} 32FC1, processed window {model.shape[1]}x"
-          f"{model.shape[0]}; in-process DepthStreamCorrector.correct (1 thread): median "
+          f"{model.shape[0]}; in-process DepthStreamCorrector.correct ({args.threads} "
+          f"thread(s)): median "
           f"{offline_ms:.1f} ms")
     rows = [("input rate (Hz)", "rate_hz", "{:g}"), ("frames sent", "sent", "{}"),
             ("corrected", "corrected", "{}"), ("dropped", "dropped", "{}"),

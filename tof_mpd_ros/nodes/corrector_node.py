@@ -76,7 +76,8 @@ PARAMETERS = (
       "deeper rides out longer stalls of this process at the cost of memory.", min_value=1,
       max_value=1000, read_only=True),
     P("threads", 1, "CPU threads for the networks (torch) and the geodesic filter (numba); "
-      "0 = the libraries' default, one per core. One leaves a core to the executor.",
+      "0 = the libraries' default, one per core. One keeps 30 Hz at 180x140 on a 2-core "
+      "machine and leaves the other cores to the rest of the robot's software.",
       min_value=0, max_value=256, read_only=True),
     P("sync_tolerance_s", 0.005, "Largest stamp difference at which depth and amplitude "
       "pair.", min_value=0.0, max_value=1.0),

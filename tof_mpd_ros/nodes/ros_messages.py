@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import array as array_mod
+
 import numpy as np
 from geometry_msgs.msg import Pose
 from scipy.spatial.transform import Rotation
@@ -20,7 +22,9 @@ def stamp_ns(msg) -> int:
 def image_message(array: np.ndarray, encoding: str, frame_id: str = "",
                   header: Header | None = None) -> Image:
     """(H, W) array -> ``sensor_msgs/Image`` (little-endian, packed rows)."""
-    step, data = array_to_image_data(array, encoding)
+    step, payload = array_to_image_data(array, encoding)
+    data = array_mod.array("B")  # assigning bytes would make rclpy check every byte in Python
+    data.frombytes(payload)
     msg = Image(height=array.shape[0], width=array.shape[1], encoding=encoding, is_bigendian=0,
                 step=step, data=data)
     if header is not None:

@@ -2,10 +2,9 @@
 
 Frames are rendered on a worker thread (a multipath frame takes about a second) and published by
 a timer at ``rate_hz`` with fresh stamps. Without an arm, the node cycles through frames of a
-viewpoint plan rendered at start-up (it stops as soon as a TCP pose publisher is discovered, so
-no frame from elsewhere is stamped while the arm's first pose is on its way); when the arm's TCP
-pose arrives on ``tcp_pose_topic`` (the
-collector publishes it while it drives the simulated or real arm), the node renders from that
+viewpoint plan rendered at start-up, once all of them are rendered (it stops as soon as a TCP
+pose publisher is discovered, so no frame from elsewhere is stamped while the arm's first pose is
+on its way); when the arm's TCP pose arrives on ``tcp_pose_topic`` (the collector publishes it while it drives the simulated or real arm), the node renders from that
 pose and publishes nothing stale in between, so every frame stamped after a pose message was
 rendered at that pose.
 
@@ -20,6 +19,7 @@ an arm pose arrives the node cycles through views of the hand-eye plan.
 from __future__ import annotations
 
 import threading
+import time
 
 import numpy as np
 from geometry_msgs.msg import PoseStamped
@@ -156,12 +156,15 @@ class SimCellNode(Node):
 
     # -- rendering (worker thread) -------------------------------------------------------
     def _render_loop(self) -> None:
+        start = time.monotonic()
         for camera_to_base_mm in self.cycle_poses:
             if self._stop.is_set():
                 return
             messages = self._render(camera_to_base_mm)
             with self._lock:
                 self._cycle.append(messages)
+        self.get_logger().info(f"rendered the {len(self.cycle_poses)} start-up views in "
+                               f"{time.monotonic() - start:.1f} s")
         while not self._stop.is_set():
             if not self._render_request.wait(0.1):
                 continue
@@ -225,7 +228,9 @@ class SimCellNode(Node):
         with self._lock:
             if self._pending_pose_mm is not None:
                 messages = self._current
-            elif self._cycle and not arm_present:
+            elif len(self._cycle) == len(self.cycle_poses) and not arm_present:
+                # Only once every view is rendered: a steady stream, not one that starts
+                # while the renderer still takes the CPU from its consumers.
                 messages = self._cycle[self._tick % len(self._cycle)]
             else:
                 messages = None
