@@ -4,9 +4,9 @@ Frames are rendered on a worker thread (a multipath frame takes about a second) 
 a timer at ``rate_hz`` with fresh stamps. Without an arm, the node cycles through frames of a
 viewpoint plan rendered at start-up, once all of them are rendered (it stops as soon as a TCP
 pose publisher is discovered, so no frame from elsewhere is stamped while the arm's first pose is
-on its way); when the arm's TCP pose arrives on ``tcp_pose_topic`` (the collector publishes it while it drives the simulated or real arm), the node renders from that
-pose and publishes nothing stale in between, so every frame stamped after a pose message was
-rendered at that pose.
+on its way); when the arm's TCP pose arrives on ``tcp_pose_topic`` (the collector publishes it
+while it drives the simulated or real arm), the node renders from that pose and publishes nothing
+stale in between, so every frame stamped after a pose message was rendered at that pose.
 
 With ``target:=hand_eye_board`` the scene is replaced by the hand-eye calibration board lying
 on the table at ``board_pose`` (:mod:`~tof_mpd_ros.collection.hand_eye_sim`): the ToF frames
