@@ -54,17 +54,24 @@ def test_scores_from_rows():
     rows = [
         {"truth": [], "selected": [], "top1": True, "both_found": None, "rmse_before_mm": 4.0,
          "rmse_after_mm": 4.0, "excess_before_mm": 1.0, "excess_after_mm": 1.0,
-         "parameter_error": {}},
+         "oracle_rmse_after_mm": 4.0, "parameter_error": {}},
         {"truth": [], "selected": ["wiggling"], "top1": False, "both_found": None,
          "rmse_before_mm": 4.0, "rmse_after_mm": 3.9, "excess_before_mm": 1.0,
-         "excess_after_mm": 0.9, "parameter_error": {}},
+         "excess_after_mm": 0.9, "oracle_rmse_after_mm": 4.0, "parameter_error": {}},
         {"truth": ["multipath"], "selected": ["multipath"], "top1": True, "both_found": None,
          "rmse_before_mm": 6.0, "rmse_after_mm": 4.5, "excess_before_mm": 2.0,
-         "excess_after_mm": 0.5, "parameter_error": {"multipath": 0.1}},
+         "excess_after_mm": 0.5, "oracle_rmse_after_mm": 4.2,
+         "parameter_error": {"multipath": 0.1}},
+        {"truth": ["wiggling"], "selected": ["wiggling"], "top1": True, "both_found": None,
+         "rmse_before_mm": 5.0, "rmse_after_mm": 4.0, "excess_before_mm": 2.0,
+         "excess_after_mm": 0.5, "oracle_rmse_after_mm": 4.0, "parameter_error": {}},
     ]
     s = summarise(rows)
     assert s["false_alarm_rate"] == 0.5 and s["top1_accuracy_effect_cases"] == 1.0
     assert np.isclose(s["excess_rmse_cut_interior_mean"], 0.75)
+    # cuts 0.25 and 0.2 against the oracle's 0.3 and 0.2: 0.45 of 0.5 achievable
+    assert np.isclose(s["rmse_cut_mean"], 0.225) and np.isclose(s["rmse_cut_oracle_mean"], 0.25)
+    assert np.isclose(s["rmse_cut_share_of_oracle"], 0.9)
     assert np.isclose(parameter_error("multipath", {"gain": 1.5}, {"gain": 3.0}), 0.5)
 
 
@@ -86,8 +93,11 @@ def test_benchmark_runs_blind_and_scores(tmp_path):
         assert set(npz.files) <= {"range_mm", "amplitude", "reference_mm", "fx", "fy", "cx",
                                   "cy", "mod_freq_hz", "stamp_ns", "pose"}
     s = doc["summary"]
-    for key in ("top1_accuracy", "false_alarm_rate", "parameter_error_median", "rmse_cut_mean"):
+    for key in ("top1_accuracy", "false_alarm_rate", "parameter_error_median", "rmse_cut_mean",
+                "rmse_cut_oracle_mean"):
         assert key in s
+    for row in doc["cases"]:  # the oracle knows the truth: it never does worse than "before"
+        assert row["oracle_rmse_after_mm"] <= row["rmse_before_mm"] + 0.05 or not row["truth"]
 
 
 def test_recordings_work_like_npz(drift_npz, tmp_path):
@@ -97,3 +107,18 @@ def test_recordings_work_like_npz(drift_npz, tmp_path):
     frames = load_frames(tmp_path / "rec")
     assert len(frames) == 6 and all(f.reference_mm is not None for f in frames)
     assert analyse(frames, max_effects=1).selected == ["temperature_drift"]
+
+
+def test_oracle_config_is_nominal_plus_the_labels():
+    from tof_mpd_ros.mismatch.cases import CONCEALABLE, draw_effect, truth_config
+    rng = np.random.default_rng(0)
+    effects = json.loads(json.dumps([{"name": n, "params": draw_effect(n, rng, 6)}
+                                     for n in ("subsurface", "hand_eye")]))  # as in labels.json
+    cfg = truth_config(effects)
+    assert cfg.enabled("subsurface") and cfg.enabled("hand_eye")
+    assert np.isclose(cfg.params("subsurface")["delay_mm"][0], effects[0]["params"]["delay_mm"][0])
+    assert cfg.params("hand_eye")["rx_mrad"] == effects[1]["params"]["rx_mrad"]
+    nominal = ToFConfig.nominal()
+    assert [n for n in CONCEALABLE if cfg.enabled(n) != nominal.enabled(n)] == \
+        [n for n in ("subsurface", "hand_eye") if not nominal.enabled(n)]
+    assert truth_config([]).to_dict() == nominal.to_dict()

@@ -180,6 +180,20 @@ def real_config(effects: dict[str, dict]) -> ToFConfig:
     return cfg
 
 
+def truth_config(effects: Sequence[dict[str, Any]]) -> ToFConfig:
+    """The simulator config an oracle would give the tool: nominal plus every concealed effect
+    at its true parameters, pose errors included as the predictor's ``hand_eye`` /
+    ``time_offset`` effects.
+
+    Args:
+        effects: a label's ``"effects"`` list, ``[{"name": ..., "params": {...}}, ...]``.
+    """
+    cfg = ToFConfig.nominal()
+    for effect in effects:
+        cfg = cfg.with_effect(effect["name"], enabled=True, **effect["params"])
+    return cfg
+
+
 def generate_case(rng: np.random.Generator, effects: Sequence[str], *, n_frames: int = 8,
                   intrinsics: Intrinsics = DEFAULT_INTRINSICS, supersample: int = 3,
                   fusion: FusionConfig = BENCH_FUSION) -> Case:
