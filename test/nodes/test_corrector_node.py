@@ -45,6 +45,7 @@ from tof_mpd_ros.correction.depth_stream import (  # noqa: E402
 from tof_mpd_ros.correction.pipeline import CorrectionModel  # noqa: E402
 from tof_mpd_ros.correction.weights import load_weights, save_weights  # noqa: E402
 from tof_mpd_ros.image_encoding import image_to_array  # noqa: E402
+from tof_mpd_ros.mismatch import realdata  # noqa: E402
 from tof_mpd_ros.nodes.ros_messages import (  # noqa: E402
     camera_info_message,
     image_message,
@@ -52,7 +53,11 @@ from tof_mpd_ros.nodes.ros_messages import (  # noqa: E402
     stamp_ns,
 )
 
-REALDATA = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "azure_kinect_mug"
+# The real frame lives beside the repository (../shared) or, in a clone elsewhere, where the
+# package's real-data tools look for it by default.
+REALDATA = next((d for d in (Path(__file__).resolve().parents[3] / "shared" / "realdata"
+                             / "azure_kinect_mug", realdata.DEFAULT_DIR) if d.is_dir()),
+                realdata.DEFAULT_DIR)
 STREAM_DOMAIN, BAD_INPUT_DOMAIN, REAL_DOMAIN, WEIGHTS_DOMAIN = 62, 63, 64, 65
 PAPER = (140, 180)  # (H, W) of the paper's crop: the live-stream test's model and frames
 SMALL = (24, 32)  # (H, W) of the bad-input tests' model and frames
