@@ -22,13 +22,6 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import (
-    DurabilityPolicy,
-    HistoryPolicy,
-    QoSProfile,
-    ReliabilityPolicy,
-    qos_profile_sensor_data,
-)
 from sensor_msgs.msg import CameraInfo, Image
 
 from ..camera import Intrinsics
@@ -47,7 +40,13 @@ from ..image_encoding import mm_to_depth
 from .pairing import LatestQueueWorker, StampPairer
 from .parameters import ParameterSpec as P
 from .parameters import declare
-from .ros_messages import cropped_camera_info, image_message, intrinsics_of, stamp_ns
+from .ros_messages import (
+    cropped_camera_info,
+    image_message,
+    intrinsics_of,
+    sensor_qos,
+    stamp_ns,
+)
 
 # The node's parameters; config/corrector.yaml mirrors these defaults (a test keeps them equal).
 PARAMETERS = (
@@ -71,6 +70,10 @@ PARAMETERS = (
     P("input_reliability", "best_effort", "QoS reliability of the three input subscriptions: "
       "best_effort (sensor-data QoS) or reliable (needs reliable publishers; use it for large "
       "frames, whose fragments best effort may lose).", choices=("best_effort", "reliable"),
+      read_only=True),
+    P("output_reliability", "best_effort", "QoS reliability of the four outputs: best_effort "
+      "(sensor-data QoS) or reliable (every message reaches reliable subscribers such as a bag "
+      "recorder; best-effort subscribers are served too).", choices=("best_effort", "reliable"),
       read_only=True),
     P("input_depth", 5, "History depth of the three input subscriptions (sensor-data QoS: 5); "
       "deeper rides out longer stalls of this process at the cost of memory.", min_value=1,
@@ -237,12 +240,8 @@ class CorrectorNode(Node):
         self.worker: LatestQueueWorker[_Pair] = LatestQueueWorker(
             self._process, maxsize=self.params["queue_size"], on_error=self._worker_error)
         out = self.params["output_topic"]
-        qos = qos_profile_sensor_data
-        reliable = self.params["input_reliability"] == "reliable"
-        in_qos = QoSProfile(depth=self.params["input_depth"], history=HistoryPolicy.KEEP_LAST,
-                            reliability=ReliabilityPolicy.RELIABLE if reliable
-                            else ReliabilityPolicy.BEST_EFFORT,
-                            durability=DurabilityPolicy.VOLATILE)
+        qos = sensor_qos(self.params["output_reliability"])
+        in_qos = sensor_qos(self.params["input_reliability"], self.params["input_depth"])
         self.pub_depth = self.create_publisher(Image, out, qos)
         self.pub_edges = self.create_publisher(Image, _beside(out, "edges"), qos)
         self.pub_confidence = self.create_publisher(Image, _beside(out, "confidence"), qos)

@@ -24,7 +24,6 @@ import time
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 
 from ..arm.ur_pose import pose_vector_to_matrix
@@ -42,11 +41,14 @@ from ..sim.structured_light import StructuredLightConfig
 from ..sim.viewpoints import ViewpointConfig, plan_viewpoints
 from .parameters import ParameterSpec as P
 from .parameters import declare
-from .ros_messages import camera_info_message, image_message, pose_matrix
+from .ros_messages import camera_info_message, image_message, pose_matrix, sensor_qos
 
 # The node's parameters; config/sim_cell.yaml mirrors these defaults (a test keeps them equal).
 PARAMETERS = (
     P("rate_hz", 30.0, "Publication rate of ToF frames.", min_value=0.1, max_value=200.0),
+    P("reliability", "best_effort", "QoS reliability of every published image and CameraInfo: "
+      "best_effort (sensor-data QoS, like a camera driver) or reliable.",
+      choices=("best_effort", "reliable"), read_only=True),
     P("seed", 0, "Seed of the scene, the plan and the sensor noise.", read_only=True),
     P("split", "test", "Object-library half the scene is drawn from.",
       choices=("train", "test"), read_only=True),
@@ -126,7 +128,7 @@ class SimCellNode(Node):
             self.cycle_poses = [v.camera_to_base_mm for v in plan.viewpoints[:p["views"]]]
             what = (f"{p['split']} scene {p['scene']} (seed {p['seed']}), "
                     f"{len(self.scene.objects)} objects")
-        qos = qos_profile_sensor_data
+        qos = sensor_qos(p["reliability"])
         self.publishers_by_key = {
             "depth": self.create_publisher(Image, p["depth_topic"], qos),
             "amplitude": self.create_publisher(Image, p["amplitude_topic"], qos),
