@@ -128,6 +128,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
               if r["top1"]]
     achieved = [(c, o) for c, o in zip(cuts, oracle, strict=True)
                 if c is not None and o is not None]
+    ceiling = sum(o for _, o in achieved)
     ex = [_ratio_cut(r["excess_before_mm"], r["excess_after_mm"]) for r in eff
           if r["top1"] and "noise_model" not in r["truth"]]
     perr = [v for r in eff for v in r["parameter_error"].values() if np.isfinite(v)]
@@ -157,9 +158,8 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         # the same cut with the true effects and parameters given (the ceiling), and the share
         # of the ceiling's cut the tool achieves (sum of cuts / sum of ceilings)
         "rmse_cut_oracle_mean": mean(oracle), "rmse_cut_oracle_median": median(oracle),
-        "rmse_cut_share_of_oracle": (sum(c for c, _ in achieved)
-                                     / sum(o for _, o in achieved)
-                                     if achieved and sum(o for _, o in achieved) > 0 else None),
+        "rmse_cut_share_of_oracle": (sum(c for c, _ in achieved) / ceiling if ceiling > 0
+                                     else None),
         "excess_rmse_cut_interior_mean": mean(ex), "excess_rmse_cut_interior_median": median(ex),
         "per_effect_top1": {k: mean(v) for k, v in sorted(per_effect.items())},
         "per_effect_parameter_error_median": {

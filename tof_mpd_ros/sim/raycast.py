@@ -546,11 +546,7 @@ def cast_rays(scene: Scene, origins_mm: np.ndarray, directions: np.ndarray) -> R
     Raises:
         InputError: on wrongly shaped inputs.
     """
-    d = check_array("directions", directions, ndim=2, shape=(None, 3), dtype_kind="f")
-    o = check_array("origins_mm", origins_mm, ndim=(1, 2), shape=(3,), dtype_kind="fiu")
-    o = o.astype(np.float64, copy=False)
-    if o.ndim == 2 and o.shape[0] != d.shape[0]:
-        raise InputError(f"origins_mm: expected (3,) or ({d.shape[0]}, 3), got {o.shape}")
+    o, d = _check_rays(origins_mm, directions)
     shared = o.ndim == 1
     comps = [np.ascontiguousarray(o[i:i + 1] if shared else o[:, i]) for i in range(3)]
     dirs = [np.ascontiguousarray(v, dtype=np.float64) for v in d.T]
@@ -564,6 +560,21 @@ def cast_rays(scene: Scene, origins_mm: np.ndarray, directions: np.ndarray) -> R
     which += 1
     return RayHits(t_mm=t, normal=normal, object_id=ids[which], albedo=albedo[which],
                    material_id=material[which])
+
+
+def _check_rays(origins_mm: np.ndarray, directions: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Validated (origins as float64 (3,) or (N, 3) mm, directions (N, 3)) of a ray batch.
+
+    Raises:
+        InputError: on wrongly shaped inputs.
+    """
+    d = check_array("directions", directions, ndim=2, shape=(None, 3), dtype_kind="f")
+    o = check_array("origins_mm", origins_mm, ndim=(1, 2), shape=(3,), dtype_kind="fiu")
+    o = o.astype(np.float64, copy=False)
+    if o.ndim == 2 and o.shape[0] != d.shape[0]:
+        raise InputError(f"origins_mm: expected (3,) or ({d.shape[0]}, 3), got {o.shape}")
+    return o, d
 
 
 def cast_rays_reference(scene: Scene, origins_mm: np.ndarray,
@@ -581,11 +592,7 @@ def cast_rays_reference(scene: Scene, origins_mm: np.ndarray,
     Raises:
         InputError: on wrongly shaped inputs.
     """
-    d = check_array("directions", directions, ndim=2, shape=(None, 3), dtype_kind="f")
-    o = check_array("origins_mm", origins_mm, ndim=(1, 2), shape=(3,), dtype_kind="fiu")
-    o = o.astype(np.float64, copy=False)
-    if o.ndim == 2 and o.shape[0] != d.shape[0]:
-        raise InputError(f"origins_mm: expected (3,) or ({d.shape[0]}, 3), got {o.shape}")
+    o, d = _check_rays(origins_mm, directions)
     comps = [float(v) for v in o] if o.ndim == 1 else [np.ascontiguousarray(v) for v in o.T]
     dirs = [np.ascontiguousarray(v, dtype=np.float64) for v in d.T]
     rays = _Rays(*comps, *dirs)
