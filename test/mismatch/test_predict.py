@@ -42,7 +42,8 @@ def test_predictor_equals_simulator_render(box_frame, name, params):
     pred = FramePredictor(frame, QUIET, frame_index=7, albedo=np.full(K.shape, 0.5))
     cfg = QUIET.with_effect(name, **params)
     ours = pred.predict(cfg)
-    sim = render_from_reference(ref, K, 0.5, cfg, frame_index=7)
+    # the same float32 reference the predictor reads from the frame
+    sim = render_from_reference(frame.reference_mm, K, 0.5, cfg, frame_index=7)
     assert np.array_equal(np.isfinite(ours.range_mm), np.isfinite(sim.range_mm))
     np.testing.assert_allclose(ours.range_mm, sim.range_mm, atol=1e-3, equal_nan=True)
     np.testing.assert_allclose(ours.amplitude, sim.amplitude, rtol=1e-4, equal_nan=True)
@@ -56,21 +57,24 @@ def test_pose_error_prediction_matches_a_moved_camera(move):
     """hand_eye through the sub-pixel phasor warp vs a supersampled render from the moved
     camera: closer than no move and than the simulator's nearest-pixel warp. (A lateral
     translation alone is not in the list: its parallax at depth edges is sub-pixel structure the
-    one-sample-per-pixel reference cannot resolve, and there the prediction is no better.)"""
+    one-sample-per-pixel reference cannot resolve, and there the prediction is no better.)
+    Multipath is off: its world is inferred from each image, which differs between a
+    supersampled render and a one-sample reference by more than the move does."""
+    quiet = QUIET.with_effect("multipath", enabled=False)
     solids = box_on_table_scene()
     rot = rotation_matrix(1e-3 * np.array([move.get(f"r{a}_mrad", 0.0) for a in "xyz"]))
     t = np.array([move.get(f"t{a}_mm", 0.0) for a in "xyz"])
     moved = [replace(s, normals=s.normals @ rot, offsets=s.offsets - s.normals @ t)
              for s in solids]
-    truth = render_tof(raycast(moved, K.scaled(3)), QUIET, np.random.default_rng(0),
+    truth = render_tof(raycast(moved, K.scaled(3)), quiet, np.random.default_rng(0),
                        supersample=3).range_mm
     ref = raycast(solids, K)
-    still = render_tof(raycast(solids, K.scaled(3)), QUIET, np.random.default_rng(0),
+    still = render_tof(raycast(solids, K.scaled(3)), quiet, np.random.default_rng(0),
                        supersample=3)
     albedo = np.where(ref.object_id == 1, 0.5, 0.5)
     frame = ToFFrame(still.range_mm, still.amplitude, K, reference_mm=ref.range_mm)
-    pred = FramePredictor(frame, QUIET, albedo=albedo)
-    cfg = QUIET.with_effect("hand_eye", enabled=True, **move)
+    pred = FramePredictor(frame, quiet, albedo=albedo)
+    cfg = quiet.with_effect("hand_eye", enabled=True, **move)
     ours = np.nanmean(np.abs(pred.predict(cfg).range_mm - truth))
     none = np.nanmean(np.abs(pred.predict().range_mm - truth))
     sim = np.nanmean(np.abs(render_from_reference(ref.range_mm, K, albedo, cfg).range_mm - truth))

@@ -1,5 +1,8 @@
 """Diffuse interreflection (multipath) with numbers: over-shoot near concave creases, none on a
-lone plane, and agreement with an independent brute-force one-bounce integration."""
+lone plane, and agreement with an independent brute-force one-bounce integration.
+
+The analytic surfaces here are range images: the world light travels through is what the image
+shows (``extend_plane=False``), unless a test says otherwise."""
 
 from __future__ import annotations
 
@@ -7,6 +10,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.ndimage import binary_erosion
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.sim.tof import (
@@ -24,6 +28,7 @@ from tof_mpd_ros.sim.tof.analytic import (
     plane_scene,
     raycast,
 )
+from tof_mpd_ros.sim.tof.reference_world import world_from_surface
 from tof_mpd_ros.sim.tof.transport import indirect_phasor
 
 K = Intrinsics.ds325().crop(180, 140)
@@ -33,10 +38,23 @@ F_MOD = MULTIPATH.mod_freq_hz
 POWER = MULTIPATH.light_power
 
 
+def _image_only(surface, config=MULTIPATH, **kw):
+    """Render ``surface`` with the image as the whole world (no inferred support plane)."""
+    world = world_from_surface(surface, extend_plane=False)
+    return render_tof(surface, config, np.random.default_rng(0), supersample=1, world=world,
+                      **kw)
+
+
+def _indirect(surface, *, bounces: int = 1, open_ratio: float = 3.0) -> np.ndarray:
+    return indirect_phasor(surface, world_from_surface(surface, extend_plane=False),
+                           mod_freq_hz=F_MOD, light_power=POWER, bounces=bounces,
+                           open_ratio=open_ratio)
+
+
 @pytest.fixture(scope="module")
 def groove():
-    ref = raycast(groove_scene(300.0, 0.5), K).range_mm
-    return ref, render_from_reference(ref, K, config=MULTIPATH)
+    surf = raycast(groove_scene(300.0, 0.5), K)
+    return surf.range_mm, _image_only(surf)
 
 
 def test_groove_overshoot_positive_peaks_near_crease_and_decays(groove):
@@ -60,8 +78,9 @@ def test_groove_overshoot_positive_peaks_near_crease_and_decays(groove):
 
 def test_groove_overshoot_scales_with_albedo():
     ref = raycast(groove_scene(300.0, 0.5), HALF).range_mm
-    bright = render_from_reference(ref, HALF, albedo=0.5, config=MULTIPATH)
-    dark = render_from_reference(ref, HALF, albedo=0.1, config=MULTIPATH)
+    one = MULTIPATH.with_effect("multipath", bounces=1)
+    bright = render_from_reference(ref, HALF, albedo=0.5, config=one)
+    dark = render_from_reference(ref, HALF, albedo=0.1, config=one)
     e_bright = float(np.nanmean(bright.range_mm - ref))
     e_dark = float(np.nanmean(dark.range_mm - ref))
     # indirect/direct ∝ albedo of the sender; for small ratios the range error is ∝ too
@@ -86,17 +105,21 @@ def test_box_on_table_crease():
     top = (surf.object_id == 1) & ~face
     # the face, lit at grazing incidence, is dominated by light from the table: cm over-shoot
     assert 5.0 < float(np.median(err[face])) < 50.0
-    # the table in front of the face over-shoots by a fraction of a mm, fading away from it
+    # the table in front of the face over-shoots by about a mm (two bounces: table → face →
+    # table doubles what the face's own direct light gives), fading away from it
     row = err[70]
     cols = np.nonzero(table[70])[0]
-    assert np.all(row[cols] > 0.005)
-    assert 0.2 < float(np.max(row[cols])) < 2.0
+    assert np.all(row[cols] > 0.05)
+    assert 0.5 < float(np.max(row[cols])) < 8.0
     # it grows from the far border towards the face, then falls again right at the crease,
     # where the light from the face arrives with almost no extra path
     peak = int(np.argmax(row[cols]))
     assert row[cols[0]] < 0.8 * row[cols[peak]] and row[cols[-1]] < 0.5 * row[cols[peak]]
-    # the box top sees no other surface (convex edge): nothing
-    assert float(np.max(np.abs(err[top & (np.abs(np.arange(K.width) - 140) < 20)]))) < 1e-3
+    # the box top sees no other surface (convex edge): nothing (its edge pixels take their
+    # normals from a range gradient that straddles the edge, so they are left out)
+    inner = binary_erosion(top, iterations=2) & (np.abs(np.arange(K.width) - 140) < 20)
+    assert inner.sum() > 1000
+    assert float(np.max(np.abs(err[inner]))) < 1e-3
 
 
 def _pixel_areas(scene: list[ConvexSolid], k: Intrinsics) -> np.ndarray:
@@ -167,11 +190,12 @@ def test_fast_transport_matches_brute_force_on_groove():
     exact = brute_force_indirect(scene, k, visibility=False)
     surf = raycast(scene, k)
     away = np.abs(np.arange(k.width) - k.cx) > 2  # the crease column mixes both planes
-    for block, tol in ((1, 0.01), (3, 0.04)):
-        fast = indirect_phasor(surf, mod_freq_hz=F_MOD, light_power=POWER, block_px=block)
+    # every leaf on its own (the tree never aggregates), then the default hierarchy
+    for open_ratio, tol in ((1e6, 0.01), (3.0, 0.04)):
+        fast = _indirect(surf, open_ratio=open_ratio)
         rel = _relative_error(fast, exact)[:, away]
-        assert float(np.median(rel)) < tol, block
-        assert float(np.percentile(rel, 95)) < 2.5 * tol, block
+        assert float(np.median(rel)) < tol, open_ratio
+        assert float(np.percentile(rel, 95)) < 2.5 * tol, open_ratio
 
 
 def test_visibility_blocks_light_like_the_brute_force():
@@ -183,7 +207,7 @@ def test_visibility_blocks_light_like_the_brute_force():
     exact = brute_force_indirect(scene, k, visibility=True)
     blind = brute_force_indirect(scene, k, visibility=False)
     surf = raycast(scene, k)
-    fast = indirect_phasor(surf, mod_freq_hz=F_MOD, light_power=POWER)
+    fast = _indirect(surf)
     shadowed = (surf.object_id == 0) & (np.abs(blind) > 1.3 * np.abs(exact))
     assert shadowed.sum() >= 100  # the cube shadows part of the table from the face
 
@@ -198,12 +222,16 @@ def test_visibility_blocks_light_like_the_brute_force():
     assert float(np.median(_relative_error(fast, exact)[lit])) < 0.08
 
 
-def test_tile_culling_does_not_change_the_result():
+def test_hierarchy_stays_close_to_every_leaf_on_its_own():
     surf = raycast(box_on_table_scene(300.0, 60.0, 10.0, 0.5), HALF)
-    tiled = indirect_phasor(surf, mod_freq_hz=F_MOD, light_power=POWER, tile_blocks=2)
-    untiled = indirect_phasor(surf, mod_freq_hz=F_MOD, light_power=POWER, tile_blocks=10**6)
-    assert float(np.max(np.abs(untiled))) > 0
-    np.testing.assert_allclose(tiled, untiled, rtol=1e-9, atol=1e-12 * np.abs(untiled).max())
+    for bounces in (1, 2):
+        tree = _indirect(surf, bounces=bounces)
+        leaves = _indirect(surf, bounces=bounces, open_ratio=1e6)
+        lit = np.abs(leaves) > 1e-3 * np.abs(leaves).max()
+        assert lit.sum() > 500
+        # later bounces are also gathered at ~8 mm patches rather than at every leaf
+        tol = 0.03 if bounces == 1 else 0.05
+        assert float(np.median(_relative_error(tree, leaves)[lit])) < tol, bounces
 
 
 def test_multipath_never_shortens_a_single_ray_pixel():
@@ -211,4 +239,6 @@ def test_multipath_never_shortens_a_single_ray_pixel():
     for scene in (box_on_table_scene(300.0, 60.0, 10.0, 0.8), groove_scene(250.0, 0.9)):
         surf = raycast(scene, HALF)
         m = render_tof(surf, MULTIPATH, np.random.default_rng(0), supersample=1)
+        assert float(np.nanmin(m.range_mm - surf.range_mm)) > -1e-4
+        m = _image_only(surf)
         assert float(np.nanmin(m.range_mm - surf.range_mm)) > -1e-4

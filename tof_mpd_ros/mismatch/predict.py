@@ -38,6 +38,7 @@ from ..sim.tof.effects.phase_wrapping import PhaseWrapping
 from ..sim.tof.effects.pixel_offset import offset_pattern
 from ..sim.tof.phasor import direct_phasor, phase_per_mm
 from ..sim.tof.reference import surface_from_reference
+from ..sim.tof.reference_world import world_from_surface
 from ..sim.tof.transport import indirect_phasor
 from ..sim.tof.warp import rotation_matrix
 
@@ -347,15 +348,19 @@ class FramePredictor:
                               albedo=self.albedo, indirect_cache=self._indirect)
 
     def indirect(self, config: ToFConfig) -> np.ndarray:
-        """(H, W) complex128 unit-gain one-bounce indirect phasor of the reference surface."""
+        """(H, W) complex128 unit-gain indirect phasor of the reference surface (its world:
+        the reference plus the support plane extended across the light's cone)."""
         p = config.params("multipath")
-        key = (p["block_px"], p["step_px"], p["max_steps"], config.mod_freq_hz,
-               config.light_power)
+        key = (tuple(sorted((k, v) for k, v in p.items() if k != "gain")),
+               config.mod_freq_hz, config.light_power)
         if key not in self._indirect:
+            world = world_from_surface(self.surface, leaf_mm=float(p["leaf_mm"]),
+                                       cutoff_deg=float(p["cutoff_deg"]),
+                                       beam_deg=float(p["beam_deg"]))
             self._indirect[key] = indirect_phasor(
-                self.surface, mod_freq_hz=config.mod_freq_hz, light_power=config.light_power,
-                block_px=int(p["block_px"]), step_px=float(p["step_px"]),
-                max_steps=int(p["max_steps"]))
+                self.surface, world, mod_freq_hz=config.mod_freq_hz,
+                light_power=config.light_power, bounces=int(p["bounces"]),
+                open_ratio=float(p["open_ratio"]), bounce_patch_mm=float(p["bounce_patch_mm"]))
         return self._indirect[key]
 
     # -- internals ----------------------------------------------------------------------------

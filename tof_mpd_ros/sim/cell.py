@@ -27,6 +27,7 @@ from .scene import Scene
 from .structured_light import FusionConfig, StructuredLightConfig, reference_range
 from .tof import ToFConfig, render_tof
 from .tof.render import centre_samples
+from .tof.world import world_from_scene
 
 
 @dataclass
@@ -114,9 +115,15 @@ class SimCell:
         """
         cam = self.camera
         surface = render_surface(scene, camera_to_base_mm, cam.window.scaled(cam.supersample))
-        # the margin only sends interreflected light into the crop: skip its own
+        world = None
+        if self.tof.effects["multipath"].enabled:
+            p = self.tof.params("multipath")
+            world = world_from_scene(scene, camera_to_base_mm, leaf_mm=float(p["leaf_mm"]),
+                                     cutoff_deg=float(p["cutoff_deg"]),
+                                     beam_deg=float(p["beam_deg"]))
+        # the margin's pixels need no indirect light of their own
         measurement = render_tof(surface, self.tof, rng, supersample=cam.supersample,
-                                 frame_index=frame_index, receivers=cam.crop_mask)
+                                 frame_index=frame_index, receivers=cam.crop_mask, world=world)
         reference = None
         if with_reference:
             reference = reference_range(scene, camera_to_base_mm, cam.intrinsics, rng,

@@ -229,7 +229,7 @@ _MAX_PLANES = 6
 
 
 @dataclass(frozen=True)
-class _PackedScene:
+class PackedScene:
     """The scene as flat arrays for the kernel (object k of the arrays = ``scene.objects[k]``).
 
     Attributes:
@@ -250,7 +250,7 @@ class _PackedScene:
     n_planes: np.ndarray
 
 
-def _pack(scene: Scene) -> _PackedScene:
+def pack_scene(scene: Scene) -> PackedScene:
     """Flatten ``scene`` for :func:`_cast_kernel` (the same scalars the numpy oracle uses)."""
     t = scene.table
     table = np.array([t.height_mm, t.centre_xy_mm[0], t.centre_xy_mm[1], t.half_extent_mm[0],
@@ -274,7 +274,7 @@ def _pack(scene: Scene) -> _PackedScene:
             n_planes[i] = len(offsets)
             planes[i, :len(offsets), :3] = normals
             planes[i, :len(offsets), 3] = offsets
-    return _PackedScene(table, kind, geom, height, planes, n_planes)
+    return PackedScene(table, kind, geom, height, planes, n_planes)
 
 
 @nb.njit(cache=True, inline="always")
@@ -429,6 +429,62 @@ def _nearest_hit(ox, oy, oz, dx, dy, dz, table, kind, geom, height, planes,
     return best, nx_b, ny_b, nz_b, which
 
 
+@nb.njit(cache=True, inline="always")
+def segment_blocked(ox, oy, oz, qx, qy, qz, t_lo, t_hi_margin, table, kind, geom, height,
+                    planes, n_planes):  # pragma: no cover - compiled
+    """Whether any scene surface cuts the segment from o to q (base frame, mm).
+
+    A hit counts when it lies farther than ``t_lo`` from o and nearer than ``|q − o| −
+    t_hi_margin``: the margins keep the segment's own end surfaces (and, for an aggregated
+    patch, the chord of a curved one) from blocking it. The same intersection kernels as
+    :func:`_nearest_hit`, stopping at the first blocking hit. ``table``, ``kind``, ``geom``,
+    ``height``, ``planes``, ``n_planes`` are the fields of :class:`PackedScene`.
+    """
+    dx = qx - ox
+    dy = qy - oy
+    dz = qz - oz
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    if not length > 0.0:
+        return False
+    dx /= length
+    dy /= length
+    dz /= length
+    t_hi = length - t_hi_margin
+    if t_hi <= t_lo:
+        return False
+    t = (table[0] - oz) / dz
+    if ((t - t) == 0.0 and t > t_lo and t < t_hi and abs(ox + t * dx - table[1]) <= table[3]
+            and abs(oy + t * dy - table[2]) <= table[4]):
+        return True
+    for k in range(kind.shape[0]):
+        g = geom[k]
+        cx = g[5] - ox
+        cy = g[6] - oy
+        cz = g[7] - oz
+        along = cx * dx + cy * dy + cz * dz
+        dist2 = cx * cx + cy * cy + cz * cz - along * along
+        if not (dist2 <= g[8] and along + g[11] > t_lo and along - g[11] < t_hi):
+            continue
+        c = g[3]
+        s = g[4]
+        x = ox - g[0]
+        y = oy - g[1]
+        lox = c * x + s * y
+        loy = c * y - s * x
+        loz = oz - g[2]
+        ldx = c * dx + s * dy
+        ldy = c * dy - s * dx
+        if kind[k] == 0:
+            tk = _kernel_polyhedron(planes[k], n_planes[k], lox, loy, loz, ldx, ldy, dz)[0]
+        elif kind[k] == 1:
+            tk = _kernel_cylinder(g[9], g[10], height[k], lox, loy, loz, ldx, ldy, dz)[0]
+        else:
+            tk = _kernel_sphere(g[9], g[10], lox, loy, loz, ldx, ldy, dz)[0]
+        if tk > t_lo and tk < t_hi:
+            return True
+    return False
+
+
 @nb.njit(parallel=True, cache=True)
 def _cast_kernel(ox_a, oy_a, oz_a, stride, dx_a, dy_a, dz_a, table, kind, geom, height, planes,
                  n_planes):  # pragma: no cover - compiled
@@ -524,7 +580,7 @@ def sl_ranges(scene: Scene, sl_to_base_mm: np.ndarray, intrinsics: Intrinsics,
     proj = np.asarray(projector_to_base_mm, dtype=np.float64)
     dirs = np.ascontiguousarray(rotate(camera_rays(intrinsics), pose[:3, :3]))
     k = intrinsics
-    p = _pack(scene)
+    p = pack_scene(scene)
     return _sl_kernel(dirs, np.ascontiguousarray(pose[:3, 3]), np.ascontiguousarray(proj[:3, 3]),
                       np.ascontiguousarray(proj[:3, :3].T),
                       np.array([k.fx, k.fy, k.cx, k.cy, k.width, k.height], dtype=np.float64),
@@ -550,7 +606,7 @@ def cast_rays(scene: Scene, origins_mm: np.ndarray, directions: np.ndarray) -> R
     shared = o.ndim == 1
     comps = [np.ascontiguousarray(o[i:i + 1] if shared else o[:, i]) for i in range(3)]
     dirs = [np.ascontiguousarray(v, dtype=np.float64) for v in d.T]
-    p = _pack(scene)
+    p = pack_scene(scene)
     t, normal, which = _cast_kernel(*comps, 0 if shared else 1, *dirs, p.table, p.kind,
                                     p.geom, p.height, p.planes, p.n_planes)
     ids = np.array([-1, 0] + [obj.scene_index for obj in scene.objects], dtype=np.int32)

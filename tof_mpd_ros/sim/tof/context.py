@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ...camera import Intrinsics
 from ..surface import SurfaceImage
+
+if TYPE_CHECKING:
+    from .world import WorldModel
 
 
 @dataclass(frozen=True)
@@ -46,6 +50,10 @@ class RenderContext:
         receivers: (H, W) bool pixels the caller keeps, or None (all): ``multipath`` computes
             the indirect light only there (the others still send light). Set only when no later
             effect mixes neighbouring pixels, so the kept pixels are unchanged by it.
+        world: the surfaces light travels through (:class:`.world.WorldModel`), or None:
+            ``multipath`` then builds one from ``surface`` alone.
+        camera_shift: (4, 4) float64 true camera → assumed camera frame (mm), composed by the
+            geometry effects that move the camera (identity otherwise).
     """
 
     intrinsics: Intrinsics
@@ -62,3 +70,5 @@ class RenderContext:
     noise_params: dict = field(default_factory=dict)
     multipath_phasor: np.ndarray | None = None
     receivers: np.ndarray | None = None
+    world: WorldModel | None = None
+    camera_shift: np.ndarray = field(default_factory=lambda: np.eye(4))

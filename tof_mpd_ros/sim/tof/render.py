@@ -5,7 +5,8 @@ Pipeline (each named effect can be switched off in :class:`.config.ToFConfig`):
 1. geometry: ``hand_eye``, ``time_offset`` re-render the surface from the true camera pose;
 2. direct return of every sample, ``P ρ cosθ / r² · e^{i 4π f r / c}``;
 3. footprint: ``mixed_pixels`` integrates the samples over each pixel (off: centre ray only);
-4. phasor: ``multipath``, ``subsurface``, ``lens_scatter``, then ``noise`` (or ``noise_model``);
+4. phasor: ``multipath`` (over a :class:`.world.WorldModel`), ``subsurface``, ``lens_scatter``,
+   then ``noise`` (or ``noise_model``);
 5. readout: range from the phasor's angle, wrapping at c/2f (``phase_wrapping``), amplitude from
    its magnitude;
 6. range: ``wiggling``, ``amplitude_bias``, ``pixel_offset``, ``temperature_drift``;
@@ -30,6 +31,7 @@ from .phasor import direct_phasor, phasor_to_range, unwrap_to_guide
 from .rays import ray_directions
 from .reference import surface_from_reference
 from .registry import EFFECTS, effect_names
+from .world import WorldModel
 
 
 @dataclass
@@ -161,12 +163,14 @@ _PIXEL_MIXING_AFTER_MULTIPATH = ("subsurface", "lens_scatter")
 
 def _render(samples: SurfaceImage, config: ToFConfig, rng: np.random.Generator,
             supersample: int, frame_index: int, motion: CameraMotion | None,
-            receivers: np.ndarray | None = None) -> ToFMeasurement:
+            receivers: np.ndarray | None = None,
+            world: WorldModel | None = None) -> ToFMeasurement:
     s = supersample
     ctx = RenderContext(intrinsics=pixel_intrinsics(samples.intrinsics, s), surface=samples,
                         samples=samples, supersample=s, mod_freq_hz=config.mod_freq_hz,
                         light_power=config.light_power, rng=rng, frame_index=int(frame_index),
-                        motion=motion, noise_params=dict(config.effects["noise"].params))
+                        motion=motion, noise_params=dict(config.effects["noise"].params),
+                        world=world)
     if receivers is not None and not any(config.effects[name].enabled
                                          for name in _PIXEL_MIXING_AFTER_MULTIPATH):
         receivers = np.asarray(receivers, dtype=bool)
@@ -202,7 +206,8 @@ def _render(samples: SurfaceImage, config: ToFConfig, rng: np.random.Generator,
 def render_tof(surface: SurfaceImage, config: ToFConfig, rng: np.random.Generator, *,
                supersample: int, frame_index: int = 0,
                motion: CameraMotion | None = None,
-               receivers: np.ndarray | None = None) -> ToFMeasurement:
+               receivers: np.ndarray | None = None,
+               world: WorldModel | None = None) -> ToFMeasurement:
     """Simulate the ToF measurement of a ray-cast scene.
 
     Args:
@@ -219,6 +224,9 @@ def render_tof(surface: SurfaceImage, config: ToFConfig, rng: np.random.Generato
             The kept pixels come out exactly as without it; the others lack the indirect
             light. Ignored when ``subsurface`` or ``lens_scatter`` (which mix neighbouring
             pixels after multipath) is on.
+        world: every surface light travels through, with the camera's pose in it
+            (:func:`.world.world_from_scene` for a simulated scene); None = infer it from
+            ``surface`` (:func:`.reference_world.world_from_surface`).
 
     Returns:
         ToFMeasurement on the H x W = surface grid / supersample pixel grid.
@@ -228,7 +236,8 @@ def render_tof(surface: SurfaceImage, config: ToFConfig, rng: np.random.Generato
         SimulationError: an effect could not be applied.
     """
     _check_inputs(surface, config, rng, supersample)
-    return _render(surface, config, rng, int(supersample), frame_index, motion, receivers)
+    return _render(surface, config, rng, int(supersample), frame_index, motion, receivers,
+                   world)
 
 
 def render_from_reference(reference_range: np.ndarray, intrinsics: Intrinsics,

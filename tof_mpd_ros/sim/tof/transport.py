@@ -1,64 +1,50 @@
-"""One-bounce diffuse light transport (camera → y → x → camera) over the visible surface.
+"""Diffuse multi-bounce light transport over a :class:`~.world.WorldModel`, as phasors.
 
-With the light source at the camera centre the lit surface is exactly the camera-visible surface,
-so the first indirect bounce is computable from the visible surface alone. For a receiver x and a
-sender patch y (area A_y), in the simulator's amplitude units (π × radiance, see :mod:`.phasor`):
+The light is a spot at the camera centre; every surface patch it reaches re-emits diffusely, and
+so, bounce after bounce, does every patch those reach. A pixel's indirect return is the light
+arriving at its surface point x from all patches, times its albedo, carried back to the camera.
+In the simulator's amplitude units (π × radiance, see :mod:`.phasor`), for a patch y of area A_y:
 
-    Z_ind(x) = ρ_x e^{ik r_x} Σ_y  (ρ_y/π) P cosθ_y^in / r_y² · A_y
-                                  · cosθ_x(y) cosθ_y(x) / (d_xy² + A_y/π) · V(x, y) · e^{ik d_xy}
+    E_1(y)    = P S(θ_y) cosθ_y^in / r_y² · V(light, y) · e^{ik r_y}                (irradiance)
+    W_b(y)    = ρ_y / π · E_b(y) · A_y                                             (emission)
+    E_{b+1}(z) = Σ_y W_b(y) · cosθ_z(y) cosθ_y(z) / (d_yz² + A_y/π) · V(y, z) · e^{ik d_yz}
+    Z_ind(x)  = ρ_x e^{ik r_x} Σ_{b=1..B} E_{b+1}(x)
 
-with k = 2π f / c per mm of *path* (so the total phase is k (r_y + d_xy + r_x)), V the visibility
-and A_y/π the disc regularisation of the form factor for nearby patches. A pixel of the range
-image covers A = r² cos³α / (f_x f_y cosθ_in) (α: ray angle to the optical axis), so a pixel emits
-``(ρ/π) P cos³α / (f_x f_y) · e^{ik r}``: independent of its range and tilt.
+with k = 2π f / c per mm of *path*, S the spot's angular profile, V the visibility and A_y/π the
+disc regularisation of the form factor for neighbouring patches. Each path keeps its own phase:
+the total is k × (every leg's length), so longer detours shift the range more.
 
-Senders are b×b pixel blocks; a block straddling a depth edge or crease is split into at most two
-clusters (near the block's closest pixel, and the rest) so no sender floats in mid-air. Visibility
-is a screen-space march: points along the segment x→y are projected into the range image and the
-path is blocked when a point lies behind the visible surface.
+Speed comes from the patch hierarchy (:class:`~.world.SurfelTree`): a receiver takes a node's
+aggregated emission when the node is small as seen from it (distance > ``open_ratio`` × its
+radius) and nearly flat, and otherwise descends to its children; nodes wholly behind the
+receiver's tangent plane, or facing away from it, are skipped as a whole. Bounces after the
+first are gathered at nodes of about ``bounce_patch_mm`` (their irradiance is smooth); the
+pixels gather at their own surface point. Visibility is exact against an analytic scene or
+tested on depth maps (space carving), see :class:`~.world.WorldModel`.
 """
 
 from __future__ import annotations
 
-import itertools
 import math
-from dataclasses import dataclass
 
 import numba as nb
 import numpy as np
 
+from ..raycast import PackedScene, segment_blocked
 from ..surface import SurfaceImage
 from .phasor import SPEED_OF_LIGHT_MM_S
 from .rays import ray_directions
 
 #: cosines below this count as zero: grazing pairs carry no light
 MIN_COS = 1e-3
-#: march points this close (px) to either end's pixel only see that end's own surface
-SKIP_PX = 1.5
-#: sender tiles span this many blocks per axis
-TILE_BLOCKS = 4
-
-
-@dataclass(frozen=True)
-class Senders:
-    """Aggregated sender patches.
-
-    Attributes:
-        position: (M, 3) float64 mean point in mm (camera frame).
-        normal: (M, 3) float64 unit normal facing the camera.
-        emission: (M,) complex128 emitted phasor Σ (ρ/π) P cos³α/(fx fy) e^{ik r} (amplitude·mm²).
-        area: (M,) float64 surface area in mm².
-        tile_start: (T + 1,) int64: senders of tile t are ``tile_start[t]:tile_start[t + 1]``.
-        tile_bounds: (T, 9) float64 per tile: centre (3, mm), bounding radius (mm), mean unit
-            normal (3), thickness max |n̄·(p − c)| (mm), normal spread max |n − n̄|.
-    """
-
-    position: np.ndarray
-    normal: np.ndarray
-    emission: np.ndarray
-    area: np.ndarray
-    tile_start: np.ndarray
-    tile_bounds: np.ndarray
+#: receivers and shadow-ray ends are moved this far off their surface (mm)
+SURFACE_OFFSET_MM = 0.5
+#: a node is gathered whole only when its normals differ by less than this (|n − n̄|)
+MAX_SPREAD = 0.3
+#: bounce receivers stay coarse where they get less than this share of the brightest one
+REFINE_FRACTION = 0.02
+#: stack depth of the tree walk (tree depth is ~2 log2(leaves per face))
+_STACK = 256
 
 
 def pixel_area_mm2(surface: SurfaceImage, min_cos: float = 0.05) -> np.ndarray:
@@ -74,274 +60,360 @@ def pixel_area_mm2(surface: SurfaceImage, min_cos: float = 0.05) -> np.ndarray:
     return surface.range_mm ** 2 * cos_axis ** 3 / (k.fx * k.fy * cos_in)
 
 
-def pixel_emission(surface: SurfaceImage, mod_freq_hz: float, light_power: float) -> np.ndarray:
-    """Phasor each sample re-emits into the scene (first bounce), see the module docstring.
-
-    Returns:
-        (H, W) complex128 in amplitude·mm²; 0 where no hit or the surface faces away.
-    """
-    rays = ray_directions(surface.intrinsics)
-    facing = -np.einsum("hwk,hwk->hw", surface.normal, rays) > 0
-    k = surface.intrinsics
-    ok = surface.valid & facing
-    r = np.where(ok, surface.range_mm, 0.0)
-    mag = np.where(ok, surface.albedo / math.pi * light_power * rays[..., 2] ** 3
-                   / (k.fx * k.fy), 0.0)
-    return mag * np.exp(1j * (2.0 * math.pi * mod_freq_hz / SPEED_OF_LIGHT_MM_S) * r)
-
-
-@nb.njit(cache=True)
-def _cluster_blocks(points, normals, rng, emission, area, block, tol_rel, tol_mm,
-                    cos_tol):  # pragma: no cover - compiled
-    h, w = rng.shape
-    bh = (h + block - 1) // block
-    bw = (w + block - 1) // block
-    cap = 2 * bh * bw
-    pos = np.zeros((cap, 3))
-    nrm = np.zeros((cap, 3))
-    emi = np.zeros(cap, dtype=np.complex128)
-    are = np.zeros(cap)
-    cnt = np.zeros(cap)
-    blk = np.zeros(cap, dtype=np.int64)
-    m = 0
-    for bi in range(bh):
-        for bj in range(bw):
-            # seed: the block's nearest valid pixel
-            si = -1
-            sj = -1
-            best = np.inf
-            for i in range(bi * block, min(h, (bi + 1) * block)):
-                for j in range(bj * block, min(w, (bj + 1) * block)):
-                    if area[i, j] > 0 and rng[i, j] < best:
-                        best = rng[i, j]
-                        si = i
-                        sj = j
-            if si < 0:
-                continue
-            tol = max(tol_mm, tol_rel * best)
-            a_idx = m
-            b_idx = m + 1
-            blk[a_idx] = bi * bw + bj
-            blk[b_idx] = bi * bw + bj
-            for i in range(bi * block, min(h, (bi + 1) * block)):
-                for j in range(bj * block, min(w, (bj + 1) * block)):
-                    if not area[i, j] > 0:
-                        continue
-                    c = normals[i, j, 0] * normals[si, sj, 0] + normals[i, j, 1] * \
-                        normals[si, sj, 1] + normals[i, j, 2] * normals[si, sj, 2]
-                    t = a_idx if (rng[i, j] - best < tol and c > cos_tol) else b_idx
-                    for q in range(3):
-                        pos[t, q] += points[i, j, q]
-                        nrm[t, q] += normals[i, j, q]
-                    emi[t] += emission[i, j]
-                    are[t] += area[i, j]
-                    cnt[t] += 1.0
-            m += 2
-    keep = cnt > 0
-    pos = pos[keep]
-    nrm = nrm[keep]
-    cnt = cnt[keep]
-    for t in range(pos.shape[0]):
-        n = math.sqrt(nrm[t, 0] ** 2 + nrm[t, 1] ** 2 + nrm[t, 2] ** 2)
-        for q in range(3):
-            pos[t, q] /= cnt[t]
-            nrm[t, q] /= max(n, 1e-12)
-    return pos, nrm, emi[keep], are[keep], blk[keep], bw
-
-
-def _tile_bounds(pos: np.ndarray, nrm: np.ndarray) -> np.ndarray:
-    """(9,) bounds of one tile's senders, see :class:`Senders`."""
-    centre = pos.mean(axis=0)
-    radius = float(np.max(np.linalg.norm(pos - centre, axis=1)))
-    mean = nrm.sum(axis=0)
-    mean = mean / max(float(np.linalg.norm(mean)), 1e-12)
-    thickness = float(np.max(np.abs((pos - centre) @ mean)))
-    spread = float(np.max(np.linalg.norm(nrm - mean, axis=1)))
-    return np.concatenate([centre, [radius], mean, [thickness, spread]])
-
-
-def build_senders(surface: SurfaceImage, *, block_px: int, mod_freq_hz: float,
-                  light_power: float, tile_blocks: int = TILE_BLOCKS) -> Senders:
-    """Aggregate the visible surface into sender patches of ``block_px`` × ``block_px`` pixels.
-
-    Args:
-        surface: pixel-resolution surface image.
-        block_px: block size in pixels (1 = every pixel is a sender).
-        mod_freq_hz: modulation frequency in Hz.
-        light_power: P in amplitude·mm².
-        tile_blocks: senders are grouped into tiles of this many blocks per axis, whose bounds
-            let a receiver skip a whole tile that cannot exchange light with it.
-    """
-    emission = pixel_emission(surface, mod_freq_hz, light_power)
-    area = np.where(np.abs(emission) > 0, np.nan_to_num(pixel_area_mm2(surface)), 0.0)
-    points = np.nan_to_num(ray_directions(surface.intrinsics) * surface.range_mm[..., None])
-    normals = np.nan_to_num(surface.normal)
-    rng = np.where(surface.valid, surface.range_mm, np.inf)
-    pos, nrm, emi, are, blk, bw = _cluster_blocks(points, normals, rng, emission, area,
-                                                  int(block_px), 0.03, 5.0, 0.8)
-    tw = (bw + tile_blocks - 1) // tile_blocks
-    tile = (blk // bw) // tile_blocks * tw + (blk % bw) // tile_blocks
-    order = np.argsort(tile, kind="stable")
-    pos, nrm, emi, are, tile = pos[order], nrm[order], emi[order], are[order], tile[order]
-    starts = np.flatnonzero(np.r_[True, tile[1:] != tile[:-1]]) if tile.size else \
-        np.zeros(0, np.int64)
-    start = np.r_[starts, tile.size].astype(np.int64)
-    bounds = np.array([_tile_bounds(pos[a:b], nrm[a:b]) for a, b in itertools.pairwise(start)],
-                      dtype=np.float64).reshape(-1, 9)
-    return Senders(pos, nrm, emi, are, start, bounds)
+# --- visibility ----------------------------------------------------------------------------
 
 
 @nb.njit(cache=True, inline="always")
-def _tile_dark(x0, x1, x2, n0, n1, n2, b, min_cos):  # pragma: no cover - compiled
-    """True when no sender of the tile with bounds ``b`` can pass the cosine tests."""
-    c0 = b[0] - x0
-    c1 = b[1] - x1
-    c2 = b[2] - x2
-    radius = b[3]
-    dist = math.sqrt(c0 * c0 + c1 * c1 + c2 * c2)
-    floor = min_cos * max(dist - radius, 0.0)  # lower bound of min_cos · |p − x|
-    # receiver side: n_x·(p − x) <= n_x·(c − x) + |n_x·n̄| h + sin∠(n_x, n̄) R
-    dot = n0 * b[4] + n1 * b[5] + n2 * b[6]
-    sin = math.sqrt(max(0.0, 1.0 - dot * dot))
-    if n0 * c0 + n1 * c1 + n2 * c2 + abs(dot) * b[7] + sin * radius <= floor:
-        return True
-    # sender side: n_y·(x − p) <= n̄·(x − c) + h + spread (|x − c| + R)
-    return -(b[4] * c0 + b[5] * c1 + b[6] * c2) + b[7] + b[8] * (dist + radius) <= floor
+def _occupied(px, py, pz, w2c, kin, depth, eps_mm, eps_rel):  # pragma: no cover - compiled
+    """Space carving: behind the surface in every view that sees the point (and in ≥ 1)."""
+    h = depth.shape[1]
+    w = depth.shape[2]
+    seen = False
+    for v in range(w2c.shape[0]):
+        cz = w2c[v, 2, 0] * px + w2c[v, 2, 1] * py + w2c[v, 2, 2] * pz + w2c[v, 2, 3]
+        if not cz > 0.0:
+            continue
+        cx = w2c[v, 0, 0] * px + w2c[v, 0, 1] * py + w2c[v, 0, 2] * pz + w2c[v, 0, 3]
+        cy = w2c[v, 1, 0] * px + w2c[v, 1, 1] * py + w2c[v, 1, 2] * pz + w2c[v, 1, 3]
+        us = kin[v, 0] * cx / cz + kin[v, 2]
+        vs = kin[v, 1] * cy / cz + kin[v, 3]
+        if not (us > -0.5 and vs > -0.5 and us < w - 0.5 and vs < h - 0.5):
+            continue
+        d = depth[v, int(vs + 0.5), int(us + 0.5)]
+        if not d < np.inf:
+            continue
+        lim = d + eps_mm + eps_rel * d
+        if cx * cx + cy * cy + cz * cz <= lim * lim:
+            return False
+        seen = True
+    return seen
 
 
-# fast-math without the no-NaN/no-inf assumptions: holes in the depth image are +inf
+@nb.njit(cache=True, inline="always")
+def _blocked(ox, oy, oz, qx, qy, qz, end_margin, mode, table, kind, geom, height, planes,
+             n_planes, w2c, kin, depth, eps_mm, eps_rel, step_mm, max_steps,
+             skip_mm):  # pragma: no cover - compiled
+    """Whether the segment o→q is blocked (mode 0: analytic scene, 1: depth views)."""
+    if mode == 0:
+        return segment_blocked(ox, oy, oz, qx, qy, qz, 0.0, end_margin, table, kind, geom,
+                               height, planes, n_planes)
+    dx = qx - ox
+    dy = qy - oy
+    dz = qz - oz
+    length = math.sqrt(dx * dx + dy * dy + dz * dz)
+    steps = min(max_steps, int(length / step_mm))
+    lo = skip_mm
+    hi = length - skip_mm - end_margin
+    for s in range(steps):
+        t = (s + 1.0) / (steps + 1.0)
+        tl = t * length
+        if tl < lo or tl > hi:
+            continue
+        if _occupied(ox + t * dx, oy + t * dy, oz + t * dz, w2c, kin, depth, eps_mm, eps_rel):
+            return True
+    return False
+
+
+@nb.njit(parallel=True, cache=True)
+def _lit_kernel(points, normals, light, mode, table, kind, geom, height, planes, n_planes, w2c,
+                kin, depth, eps_mm, eps_rel, step_mm, max_steps,
+                skip_mm):  # pragma: no cover - compiled
+    n = points.shape[0]
+    out = np.zeros(n, dtype=np.bool_)
+    for i in nb.prange(n):
+        px = points[i, 0] + SURFACE_OFFSET_MM * normals[i, 0]
+        py = points[i, 1] + SURFACE_OFFSET_MM * normals[i, 1]
+        pz = points[i, 2] + SURFACE_OFFSET_MM * normals[i, 2]
+        out[i] = not _blocked(light[0], light[1], light[2], px, py, pz, 0.0, mode, table,
+                              kind, geom, height, planes, n_planes, w2c, kin, depth, eps_mm,
+                              eps_rel, step_mm, max_steps, skip_mm)
+    return out
+
+
+def _vis_args(scene: PackedScene | None, views) -> tuple:
+    """The occluder as the compiled kernels' positional arguments (mode first)."""
+    if scene is not None:
+        return (0, scene.table, scene.kind, scene.geom, scene.height, scene.planes,
+                scene.n_planes, np.zeros((0, 3, 4)), np.zeros((0, 4)), np.zeros((0, 1, 1)),
+                2.0, 0.01, 4.0, 0, 3.0)
+    empty = pack_empty()
+    return (1, *empty, views.world_to_camera, views.intrinsics, views.range_mm,
+            float(views.eps_mm), float(views.eps_rel), float(views.step_mm),
+            int(views.max_steps), float(views.skip_mm))
+
+
+def pack_empty() -> tuple:
+    """Analytic-scene arguments for a world without one (never read in mode 1)."""
+    return (np.zeros(6), np.zeros(0, np.int64), np.zeros((0, 12)), np.zeros(0),
+            np.zeros((0, 6, 4)), np.zeros(0, np.int64))
+
+
+def shadow_test_scene(points: np.ndarray, normals: np.ndarray, light_mm: np.ndarray,
+                      scene: PackedScene) -> np.ndarray:
+    """(N,) bool: the points (N, 3) (mm, base frame) see the light at ``light_mm``."""
+    args = _vis_args(scene, None)
+    return _lit_kernel(points, normals, np.asarray(light_mm, np.float64), *args)
+
+
+def shadow_test_views(points: np.ndarray, normals: np.ndarray, light_mm: np.ndarray,
+                      views) -> np.ndarray:
+    """(N,) bool: the points see the light, by space carving on ``views`` (a DepthViews)."""
+    args = list(_vis_args(None, views))
+    args[-2] = max(int(args[-2]), 64)  # a shadow ray is long: test it densely
+    return _lit_kernel(points, normals, np.asarray(light_mm, np.float64), *args)
+
+
+# --- gathering -----------------------------------------------------------------------------
+
+
+@nb.njit(cache=True)
+def _sum_up(w_re, w_im, w_abs, child, n_leaves):  # pragma: no cover - compiled
+    for i in range(n_leaves, w_re.shape[0]):
+        a = child[i, 0]
+        b = child[i, 1]
+        w_re[i] = w_re[a] + w_re[b]
+        w_im[i] = w_im[a] + w_im[b]
+        w_abs[i] = w_abs[a] + w_abs[b]
+
+
 @nb.njit(parallel=True, fastmath={"nsz", "arcp", "contract", "afn", "reassoc"}, cache=True)
-def _gather(rx_pos, rx_nrm, rx_u, rx_v, s_pos, s_nrm, s_uv, s_emi_re, s_emi_im, s_area,
-            tile_start, tile_bounds, depth, fx, fy, cx, cy, k_path, step_px, max_steps, eps_mm,
-            eps_rel, min_cos, skip2):  # pragma: no cover - compiled
+def _gather(rx_pos, rx_nrm, centre, normal, area, radius, spread, thickness, child, roots,
+            w_re, w_im, w_abs, open2, max_spread, k_path, min_cos, mode, table, kind, geom,
+            height, planes, n_planes, w2c, kin, depth, eps_mm, eps_rel, step_mm, max_steps,
+            skip_mm):  # pragma: no cover - compiled
+    """Irradiance phasor at each receiver point from the tree's emission (see module doc)."""
     n = rx_pos.shape[0]
-    n_tiles = tile_bounds.shape[0]
-    h, w = depth.shape
     out_re = np.zeros(n)
     out_im = np.zeros(n)
     inv_pi = 1.0 / math.pi
     for i in nb.prange(n):
+        stack = np.empty(_STACK, dtype=np.int64)
         x0 = rx_pos[i, 0]
         x1 = rx_pos[i, 1]
         x2 = rx_pos[i, 2]
         n0 = rx_nrm[i, 0]
         n1 = rx_nrm[i, 1]
         n2 = rx_nrm[i, 2]
-        ux = rx_u[i]
-        vx = rx_v[i]
+        o0 = x0 + SURFACE_OFFSET_MM * n0
+        o1 = x1 + SURFACE_OFFSET_MM * n1
+        o2 = x2 + SURFACE_OFFSET_MM * n2
         acc_re = 0.0
         acc_im = 0.0
-        for tt in range(n_tiles):
-            if _tile_dark(x0, x1, x2, n0, n1, n2, tile_bounds[tt], min_cos):
+        top = 0
+        for r in range(roots.shape[0]):
+            stack[top] = roots[r]
+            top += 1
+        while top > 0:
+            top -= 1
+            s = stack[top]
+            if w_abs[s] <= 0.0:
                 continue
-            for j in range(tile_start[tt], tile_start[tt + 1]):
-                d0 = s_pos[j, 0] - x0
-                d1 = s_pos[j, 1] - x1
-                d2 = s_pos[j, 2] - x2
-                dd = d0 * d0 + d1 * d1 + d2 * d2
-                dist = math.sqrt(dd)
-                # (cosines carry a factor dist; below min_cos the pair exchanges no light, which
-                # also keeps coplanar pixels of one plane from marching on rounding noise)
-                cos_x = n0 * d0 + n1 * d1 + n2 * d2
-                if cos_x <= min_cos * dist:
-                    continue
-                cos_y = -(s_nrm[j, 0] * d0 + s_nrm[j, 1] * d1 + s_nrm[j, 2] * d2)
-                if cos_y <= min_cos * dist:
-                    continue
-                # screen-space visibility march between the receiver and sender pixels
-                uy = s_uv[j, 0]
-                vy = s_uv[j, 1]
-                pix2 = (uy - ux) ** 2 + (vy - vx) ** 2
-                steps = min(max_steps, int(math.sqrt(pix2) / step_px))
-                visible = True
-                for q in range(steps):
-                    t = (q + 1.0) / (steps + 1.0)
-                    p2 = x2 + t * d2
-                    if p2 <= 0.0:
-                        continue
-                    p0 = x0 + t * d0
-                    p1 = x1 + t * d1
-                    us = fx * p0 / p2 + cx
-                    vs = fy * p1 / p2 + cy
-                    # near either end the march only sees the end's own surface
-                    near_x = (us - ux) ** 2 + (vs - vx) ** 2 < skip2
-                    if near_x or (us - uy) ** 2 + (vs - vy) ** 2 < skip2:
-                        continue
-                    ui = int(us + 0.5)
-                    vi = int(vs + 0.5)
-                    if ui < 0 or vi < 0 or ui >= w or vi >= h:
-                        continue
-                    dz = depth[vi, ui]
-                    if not dz < np.inf:
-                        continue
-                    lim = dz + eps_mm + eps_rel * dz
-                    if p0 * p0 + p1 * p1 + p2 * p2 > lim * lim:
-                        visible = False
-                        break
-                if not visible:
-                    continue
-                g = cos_x * cos_y / (dd * (dd + s_area[j] * inv_pi))
-                ph = k_path * dist
-                c = math.cos(ph)
-                s = math.sin(ph)
-                er = s_emi_re[j]
-                ei = s_emi_im[j]
-                acc_re += g * (er * c - ei * s)
-                acc_im += g * (er * s + ei * c)
+            d0 = centre[s, 0] - x0
+            d1 = centre[s, 1] - x1
+            d2 = centre[s, 2] - x2
+            dd = d0 * d0 + d1 * d1 + d2 * d2
+            dist = math.sqrt(dd)
+            rad = radius[s]
+            # no point of the node passes a cosine test (each side's cosine carries a factor
+            # |p − x| ≥ dist − rad): the node is skipped whole. Receiver side:
+            # n_x·(p − x) ≤ n_x·(c − x) + |n_x·n̄| h + sin∠(n_x, n̄) R
+            floor = min_cos * max(dist - rad, 0.0)
+            cos_x = n0 * d0 + n1 * d1 + n2 * d2
+            dot = n0 * normal[s, 0] + n1 * normal[s, 1] + n2 * normal[s, 2]
+            sin = math.sqrt(max(0.0, 1.0 - dot * dot))
+            if cos_x + abs(dot) * thickness[s] + (sin + spread[s]) * rad <= floor:
+                continue
+            # sender side: n_y·(x − p) ≤ n̄·(x − c) + h + spread (|x − c| + R)
+            nd = -(normal[s, 0] * d0 + normal[s, 1] * d1 + normal[s, 2] * d2)
+            if nd + thickness[s] + spread[s] * (dist + rad) <= floor:
+                continue
+            if child[s, 0] >= 0 and (dd < open2 * rad * rad or spread[s] > max_spread):
+                if top + 2 > _STACK:
+                    continue  # cannot happen for trees of sane depth
+                stack[top] = child[s, 0]
+                stack[top + 1] = child[s, 1]
+                top += 2
+                continue
+            if cos_x <= min_cos * dist or nd <= min_cos * dist:
+                continue
+            if _blocked(o0, o1, o2, centre[s, 0], centre[s, 1], centre[s, 2],
+                        thickness[s] + SURFACE_OFFSET_MM, mode, table, kind, geom, height,
+                        planes, n_planes, w2c, kin, depth, eps_mm, eps_rel, step_mm,
+                        max_steps, skip_mm):
+                continue
+            g = cos_x * nd / (dd * (dd + area[s] * inv_pi))
+            ph = k_path * dist
+            c = math.cos(ph)
+            sn = math.sin(ph)
+            acc_re += g * (w_re[s] * c - w_im[s] * sn)
+            acc_im += g * (w_re[s] * sn + w_im[s] * c)
         out_re[i] = acc_re
         out_im[i] = acc_im
     return out_re, out_im
 
 
-def indirect_phasor(surface: SurfaceImage, *, mod_freq_hz: float, light_power: float,
-                    block_px: int = 3, step_px: float = 3.0, max_steps: int = 8,
-                    eps_mm: float = 2.0, eps_rel: float = 0.01,
-                    tile_blocks: int = TILE_BLOCKS,
+@nb.njit(cache=True)
+def _bounce_cut(radius, spread, child, n_leaves, max_radius, max_spread):  # pragma: no cover
+    """For every leaf, its highest ancestor that is small and flat (a bounce receiver).
+
+    Returns:
+        (n_leaves,) int64 receiver node per leaf; (N,) bool which nodes are receivers.
+    """
+    n = radius.shape[0]
+    parent = np.full(n, -1, dtype=np.int64)
+    for i in range(n_leaves, n):
+        parent[child[i, 0]] = i
+        parent[child[i, 1]] = i
+    cut = np.empty(n_leaves, dtype=np.int64)
+    is_rx = np.zeros(n, dtype=np.bool_)
+    for leaf in range(n_leaves):
+        node = leaf
+        while True:
+            p = parent[node]
+            if p < 0 or radius[p] > max_radius or spread[p] > max_spread:
+                break
+            node = p
+        cut[leaf] = node
+        is_rx[node] = True
+    return cut, is_rx
+
+
+def _gather_tree(rx_pos, rx_nrm, tree, w: np.ndarray, k_path: float, open_ratio: float,
+                 vis: tuple) -> np.ndarray:
+    """(M,) complex128 irradiance phasor at the receivers from leaf emission ``w``."""
+    n = tree.size
+    w_re = np.zeros(n)
+    w_im = np.zeros(n)
+    w_abs = np.zeros(n)
+    w_re[:tree.n_leaves] = w.real
+    w_im[:tree.n_leaves] = w.imag
+    w_abs[:tree.n_leaves] = np.abs(w)
+    _sum_up(w_re, w_im, w_abs, tree.child, tree.n_leaves)
+    re, im = _gather(np.ascontiguousarray(rx_pos), np.ascontiguousarray(rx_nrm), tree.centre,
+                     tree.normal, tree.area, tree.radius, tree.spread, tree.thickness,
+                     tree.child, tree.roots, w_re, w_im, w_abs, float(open_ratio) ** 2,
+                     MAX_SPREAD, k_path, MIN_COS, *vis)
+    return re + 1j * im
+
+
+def first_bounce_emission(world, mod_freq_hz: float, light_power: float) -> np.ndarray:
+    """(n_leaves,) complex128 W_1: what each leaf re-emits of the light it receives directly.
+
+    Units amplitude·mm² (see the module docstring); 0 for unlit leaves.
+    """
+    tree = world.tree
+    from .world import spot_profile
+    p = tree.centre[:tree.n_leaves] - world.light.position
+    r = np.linalg.norm(p, axis=1)
+    u = p / r[:, None]
+    cos_in = np.clip(-np.einsum("ij,ij->i", tree.normal[:tree.n_leaves], u), 0.0, 1.0)
+    profile = spot_profile(u @ world.light.axis, world.light.cutoff_deg, world.light.beam_deg)
+    lit = world.lit if world.lit is not None else np.ones(tree.n_leaves, bool)
+    k_path = 2.0 * math.pi * mod_freq_hz / SPEED_OF_LIGHT_MM_S
+    e1 = np.where(lit, light_power * profile * cos_in / r ** 2, 0.0)
+    return (tree.albedo[:tree.n_leaves] / math.pi * tree.area[:tree.n_leaves] * e1
+            * np.exp(1j * k_path * r))
+
+
+def bounce_emissions(world, *, mod_freq_hz: float, light_power: float, bounces: int,
+                     open_ratio: float = 3.0, bounce_patch_mm: float = 8.0) -> list[np.ndarray]:
+    """Leaf emission of each bounce, W_1 .. W_B (each (n_leaves,) complex128, amplitude·mm²)."""
+    tree = world.tree
+    k_path = 2.0 * math.pi * mod_freq_hz / SPEED_OF_LIGHT_MM_S
+    vis = _vis_args(world.scene, world.views)
+    out = [first_bounce_emission(world, mod_freq_hz, light_power)]
+    if bounces < 2:
+        return out
+    # receivers: patches of about bounce_patch_mm (radius of a square: side / √2), and
+    # patches 4× larger where the coarse pass finds little light
+    fine, _ = _bounce_cut(tree.radius, tree.spread, tree.child, tree.n_leaves,
+                          1.01 * bounce_patch_mm / math.sqrt(2.0), MAX_SPREAD)
+    coarse, _ = _bounce_cut(tree.radius, tree.spread, tree.child, tree.n_leaves,
+                            4.04 * bounce_patch_mm / math.sqrt(2.0), MAX_SPREAD)
+    leaf_factor = tree.albedo[:tree.n_leaves] / math.pi * tree.area[:tree.n_leaves]
+    for _ in range(bounces - 1):
+        e = _adaptive_irradiance(tree, out[-1], fine, coarse, k_path, open_ratio, vis)
+        out.append(leaf_factor * e)
+    return out
+
+
+def _adaptive_irradiance(tree, w: np.ndarray, fine: np.ndarray, coarse: np.ndarray,
+                         k_path: float, open_ratio: float, vis: tuple) -> np.ndarray:
+    """(n_leaves,) complex128 irradiance phasor per leaf from emission ``w``: gathered at the
+    coarse patches, then again at the fine ones inside every coarse patch that receives more
+    than ``REFINE_FRACTION`` of the brightest one's irradiance."""
+    rx_c, slot_c = np.unique(coarse, return_inverse=True)
+    e_c = _gather_tree(tree.centre[rx_c], tree.normal[rx_c], tree, w, k_path, open_ratio, vis)
+    mag = np.abs(e_c)
+    refine_patch = mag > REFINE_FRACTION * (mag.max() if mag.size else 0.0)
+    e = e_c[slot_c]
+    leaves = np.flatnonzero(refine_patch[slot_c])
+    if leaves.size:
+        rx_f, slot_f = np.unique(fine[leaves], return_inverse=True)
+        e_f = _gather_tree(tree.centre[rx_f], tree.normal[rx_f], tree, w, k_path, open_ratio,
+                           vis)
+        e[leaves] = e_f[slot_f]
+    return e
+
+
+def _snap_to_plane(pos: np.ndarray, nrm: np.ndarray, plane: np.ndarray,
+                   max_tilt_deg: float = 25.0) -> tuple[np.ndarray, np.ndarray]:
+    """Receivers lying on ``plane`` (n, d) and facing like it, moved onto it with its normal."""
+    n, d = plane[:3], plane[3]
+    signed = pos @ n - d
+    on = (np.abs(signed) <= 2.0 + 0.005 * np.linalg.norm(pos, axis=1)) & \
+        (nrm @ n >= math.cos(math.radians(max_tilt_deg)))
+    pos = np.where(on[:, None], pos - signed[:, None] * n, pos)
+    nrm = np.where(on[:, None], n, nrm)
+    return pos, nrm
+
+
+def indirect_phasor(surface: SurfaceImage, world, *, mod_freq_hz: float, light_power: float,
+                    bounces: int = 2, open_ratio: float = 3.0, bounce_patch_mm: float = 8.0,
                     receivers: np.ndarray | None = None) -> np.ndarray:
-    """One-bounce indirect phasor arriving at every pixel of ``surface``.
+    """Indirect phasor arriving at every pixel of ``surface`` through ``bounces`` bounces.
 
     Args:
-        surface: pixel-resolution surface image (the visible scene).
+        surface: pixel-resolution surface image (the receivers: centre rays of the pixels).
+        world: the :class:`~.world.WorldModel` the light travels through (its
+            ``camera_to_world`` places ``surface`` in it).
         mod_freq_hz: modulation frequency in Hz.
         light_power: P in amplitude·mm².
-        block_px: sender block size in pixels.
-        step_px: visibility march spacing in pixels.
-        max_steps: most visibility samples per receiver–sender pair.
-        eps_mm, eps_rel: a march point occludes when it lies more than
-            ``eps_mm + eps_rel·range`` behind the visible surface.
-        tile_blocks: sender tile size in blocks (tiles that cannot exchange light with a
-            receiver are skipped as a whole; the result does not depend on it).
-        receivers: (H, W) bool, the pixels whose indirect light is computed (None = all). The
-            others still send light but receive none (0): for callers that discard them, e.g.
-            the margin of a rendering window. Each receiver's value does not depend on it.
+        bounces: diffuse bounces between the light and the receiving pixel (1 = one bounce).
+        open_ratio: a node is gathered whole when farther than this many radii.
+        bounce_patch_mm: patch size at which bounces after the first are gathered, mm.
+        receivers: (H, W) bool, the pixels whose indirect light is computed (None = all); the
+            others get 0. Each receiver's value does not depend on it.
 
     Returns:
         (H, W) complex128 indirect phasor (same amplitude units as the direct return); 0 where
         the pixel has no hit.
     """
-    senders = build_senders(surface, block_px=block_px, mod_freq_hz=mod_freq_hz,
-                            light_power=light_power, tile_blocks=tile_blocks)
     h, w = surface.intrinsics.shape
     out = np.zeros((h, w), dtype=np.complex128)
     valid = surface.valid & np.all(np.isfinite(surface.normal), axis=-1)
     if receivers is not None:
         valid &= np.asarray(receivers, dtype=bool)
-    if senders.area.size == 0 or not valid.any():
+    if not valid.any() or bounces < 1:
         return out
+    emissions = bounce_emissions(world, mod_freq_hz=mod_freq_hz, light_power=light_power,
+                                 bounces=bounces, open_ratio=open_ratio,
+                                 bounce_patch_mm=bounce_patch_mm)
+    total = np.sum(emissions, axis=0)
     vv, uu = np.nonzero(valid)
-    k = surface.intrinsics
-    depth = np.where(surface.valid, surface.range_mm, np.inf)
+    points = ray_directions(surface.intrinsics)[vv, uu] * surface.range_mm[vv, uu, None]
+    pose = world.camera_to_world
+    rx_pos = points @ pose[:3, :3].T + pose[:3, 3]
+    rx_nrm = surface.normal[vv, uu] @ pose[:3, :3].T
+    if world.support_plane is not None:
+        rx_pos, rx_nrm = _snap_to_plane(rx_pos, rx_nrm, world.support_plane)
     k_path = 2.0 * math.pi * mod_freq_hz / SPEED_OF_LIGHT_MM_S
-    s_uv = k.project(senders.position)
-    # the d² of the form factor is folded into g = cos_x cos_y / (d² (d² + A/π)) because the
-    # cosines above are not normalised (they carry a factor d each)
-    points = ray_directions(k) * surface.range_mm[..., None]
-    re, im = _gather(points[vv, uu], surface.normal[vv, uu], uu.astype(np.float64),
-                     vv.astype(np.float64), senders.position, senders.normal, s_uv,
-                     senders.emission.real.copy(), senders.emission.imag.copy(), senders.area,
-                     senders.tile_start, senders.tile_bounds, depth, k.fx, k.fy, k.cx, k.cy,
-                     k_path, float(step_px), int(max_steps), float(eps_mm), float(eps_rel),
-                     MIN_COS, SKIP_PX ** 2)
+    e = _gather_tree(rx_pos, rx_nrm, world.tree, total, k_path, open_ratio,
+                     _vis_args(world.scene, world.views))
     r = surface.range_mm[vv, uu]
-    out[vv, uu] = surface.albedo[vv, uu] * np.exp(1j * k_path * r) * (re + 1j * im)
+    out[vv, uu] = surface.albedo[vv, uu] * np.exp(1j * k_path * r) * e
     return out
+
+
+__all__ = ["bounce_emissions", "first_bounce_emission", "indirect_phasor", "pixel_area_mm2",
+           "shadow_test_scene", "shadow_test_views"]

@@ -36,4 +36,4 @@ class HandEye(Effect):
               ctx: RenderContext) -> SurfaceImage:
         rot = 1e-3 * np.array([params["rx_mrad"], params["ry_mrad"], params["rz_mrad"]], float)
         trans = np.array([params["tx_mm"], params["ty_mm"], params["tz_mm"]], float)
-        return moved_surface(x, rot, trans)
+        return moved_surface(x, rot, trans, ctx)

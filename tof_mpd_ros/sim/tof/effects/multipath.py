@@ -1,7 +1,11 @@
-"""``multipath``: one-bounce diffuse interreflection added to each pixel's phasor.
+"""``multipath``: diffuse interreflection of every lit surface, several bounces, with visibility.
 
-See :mod:`..transport` for the equation. ``gain`` scales the indirect phasor (1 = physical); the
-other parameters trade accuracy for speed and are not meant to be fitted.
+See :mod:`..transport` for the equations and :mod:`..world` for the surfaces light travels
+through. The world comes from the caller (the simulated cell passes the whole scene) or, when
+there is none, from the rendered surface itself (:func:`..reference_world.world_from_surface`:
+its pixels plus the support plane extended across the light's cone). ``gain`` scales the
+indirect phasor (1 = physical); the other parameters trade accuracy for speed or describe the
+light, and are not meant to be fitted.
 """
 
 from __future__ import annotations
@@ -13,28 +17,48 @@ import numpy as np
 
 from ..context import RenderContext
 from ..effect import Effect, ParamSpec
+from ..reference_world import world_from_surface
 from ..transport import indirect_phasor
+from ..world import DEFAULT_BEAM_DEG, DEFAULT_CUTOFF_DEG, DEFAULT_LEAF_MM
 
 
 class Multipath(Effect):
     name = "multipath"
     stage = "phasor"
     nominal = True
-    summary = "diffuse interreflection (camera → y → x → camera) with visibility, one bounce"
+    summary = "diffuse interreflection of every lit surface (two bounces), with visibility"
     params = (
-        ParamSpec("gain", 1.0, 0.0, 3.0, "1",
-                  "scale of the indirect phasor (1 = physical; >1 stands in for more bounces)"),
-        ParamSpec("block_px", 3, 1, 6, "px", "sender block size", fit=False),
-        ParamSpec("step_px", 3.0, 1.0, 8.0, "px", "visibility march spacing", fit=False),
-        ParamSpec("max_steps", 8, 0, 32, "1", "most visibility samples per pair", fit=False),
+        ParamSpec("gain", 1.0, 0.0, 3.0, "1", "scale of the indirect phasor (1 = physical)"),
+        ParamSpec("bounces", 2, 1, 4, "1", "diffuse bounces between light and pixel", fit=False),
+        ParamSpec("leaf_mm", DEFAULT_LEAF_MM, 1.0, 20.0, "mm", "finest surface patch",
+                  fit=False),
+        ParamSpec("open_ratio", 3.0, 1.5, 20.0, "1",
+                  "a patch is gathered whole beyond this many radii", fit=False),
+        ParamSpec("bounce_patch_mm", 8.0, 2.0, 40.0, "mm",
+                  "patch size at which later bounces are gathered", fit=False),
+        ParamSpec("cutoff_deg", DEFAULT_CUTOFF_DEG, 20.0, 90.0, "deg",
+                  "half-angle of the light's cone (nothing beyond)", fit=False),
+        ParamSpec("beam_deg", DEFAULT_BEAM_DEG, 10.0, 90.0, "deg",
+                  "half-angle of full intensity (linear falloff to the cutoff)", fit=False),
     )
 
     def apply(self, x: np.ndarray, params: Mapping[str, Any],
               ctx: RenderContext) -> np.ndarray:
-        indirect = indirect_phasor(ctx.surface, mod_freq_hz=ctx.mod_freq_hz,
-                                   light_power=ctx.light_power, block_px=int(params["block_px"]),
-                                   step_px=float(params["step_px"]),
-                                   max_steps=int(params["max_steps"]),
+        world = ctx.world
+        if not ctx.surface.valid.any():
+            ctx.multipath_phasor = np.zeros(x.shape, np.complex128)
+            return x
+        if world is None:
+            world = world_from_surface(ctx.surface, leaf_mm=float(params["leaf_mm"]),
+                                       cutoff_deg=float(params["cutoff_deg"]),
+                                       beam_deg=float(params["beam_deg"]))
+        if not np.array_equal(ctx.camera_shift, np.eye(4)):
+            # the camera (and its pixels) sits where the geometry effects moved it
+            world = world.moved_camera(world.camera_to_world @ ctx.camera_shift)
+        indirect = indirect_phasor(ctx.surface, world, mod_freq_hz=ctx.mod_freq_hz,
+                                   light_power=ctx.light_power, bounces=int(params["bounces"]),
+                                   open_ratio=float(params["open_ratio"]),
+                                   bounce_patch_mm=float(params["bounce_patch_mm"]),
                                    receivers=ctx.receivers)
         ctx.multipath_phasor = float(params["gain"]) * indirect
         return x + ctx.multipath_phasor

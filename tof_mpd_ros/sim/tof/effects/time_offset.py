@@ -35,4 +35,4 @@ class TimeOffset(Effect):
         dt = 1e-3 * float(params["offset_ms"])
         rot = np.asarray(ctx.motion.angular_rad_s, dtype=np.float64) * dt
         trans = np.asarray(ctx.motion.linear_mm_s, dtype=np.float64) * dt
-        return moved_surface(x, rot, trans)
+        return moved_surface(x, rot, trans, ctx)

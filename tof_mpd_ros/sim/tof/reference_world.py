@@ -1,0 +1,261 @@
+"""A :class:`~.world.WorldModel` from range images alone (a reference, or a rendered surface).
+
+What a range image gives: the surfaces its camera sees. What light transport also needs: every
+surface the light reaches, most of it outside the image (the table in front of a box lights the
+box's side face). This module fills in what can be inferred and states what cannot:
+
+* **the support plane** — fitted robustly (RANSAC, then least squares on its inliers) and
+  preferred over other planes when nothing lies behind it — is extended across the light's cone
+  outside the image, with the albedo of its visible part;
+* **other views** of the same scene, placed by their poses, add the surfaces only they saw
+  (the back of an object, table hidden behind it here); free space is what any view saw through
+  (space carving), so each view also refines visibility;
+* **unknowable** from images: surfaces no view saw (the far side of objects outside every
+  view; objects outside every image stand where the plane is assumed free), the albedo of
+  unseen surfaces (the plane's is used), anything below the support plane. These are assumed
+  absent.
+
+Units: mm; the world frame is the target camera's frame unless poses are given.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ...errors import InputError
+from ..surface import SurfaceImage
+from .transport import shadow_test_views
+from .world import (
+    DEFAULT_BEAM_DEG,
+    DEFAULT_CUTOFF_DEG,
+    DEFAULT_LEAF_MM,
+    DepthViews,
+    FaceGrid,
+    WorldModel,
+    build_tree,
+    camera_spot,
+    depth_view,
+    surface_face,
+)
+
+#: the plane is extended at most this many camera distances from the camera
+MAX_REACH = 4.0
+#: a plane must hold this fraction of the valid pixels to be extended
+MIN_PLANE_FRACTION = 0.1
+
+
+@dataclass(frozen=True)
+class Plane:
+    """A plane n·p = d (camera frame), n a unit vector pointing towards the camera.
+
+    Attributes:
+        normal: (3,) float64 unit normal, n·(0 − p) > 0 for the camera at the origin.
+        offset_mm: d, so the camera's distance to the plane is −d.
+        inlier_fraction: share of the valid pixels within tolerance of the plane.
+    """
+
+    normal: np.ndarray
+    offset_mm: float
+    inlier_fraction: float
+
+
+def _tolerance(points: np.ndarray) -> np.ndarray:
+    return 2.0 + 0.005 * np.linalg.norm(points, axis=-1)
+
+
+def fit_support_plane(points_mm: np.ndarray, *, iterations: int = 256,
+                      seed: int = 0) -> Plane | None:
+    """The plane the scene stands on: many inliers and (almost) nothing behind it.
+
+    Args:
+        points_mm: (N, 3) float64 visible points, camera frame, mm (NaN rows ignored).
+        iterations: RANSAC hypotheses.
+        seed: sampling seed (the fit is deterministic).
+
+    Returns:
+        The plane, or None when no plane holds ``MIN_PLANE_FRACTION`` of the points.
+    """
+    p = points_mm[np.all(np.isfinite(points_mm), axis=1)]
+    if p.shape[0] < 50:
+        return None
+    rng = np.random.default_rng(seed)
+    sub = p[rng.choice(p.shape[0], size=min(p.shape[0], 4000), replace=False)]
+    tol = _tolerance(sub)
+    tri = sub[rng.integers(0, sub.shape[0], size=(iterations, 3))]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 1e-9
+    n = n[ok] / norm[ok, None]
+    d = np.einsum("ij,ij->i", n, tri[ok, 0])
+    # orient towards the camera (origin): n·(0 − p) > 0  <=>  d < 0
+    flip = d > 0
+    n[flip] *= -1
+    d[flip] *= -1
+    signed = sub @ n.T - d  # (M, H) > 0: in front of the plane (camera side)
+    inliers = np.abs(signed) <= tol[:, None]
+    behind = signed < -tol[:, None]
+    # a support plane has the scene in front of it: points behind it count against it
+    score = inliers.sum(axis=0) - 4 * behind.sum(axis=0)
+    best = int(np.argmax(score))
+    if inliers[:, best].mean() < MIN_PLANE_FRACTION:
+        return None
+    normal, offset = _refine(p, n[best], d[best])
+    frac = float((np.abs(p @ normal - offset) <= _tolerance(p)).mean())
+    if frac < MIN_PLANE_FRACTION:
+        return None
+    return Plane(normal, offset, frac)
+
+
+def _refine(points: np.ndarray, n: np.ndarray, d: float) -> tuple[np.ndarray, float]:
+    """Least-squares plane through the inliers of (n, d), twice."""
+    for _ in range(2):
+        close = np.abs(points @ n - d) <= _tolerance(points)
+        q = points[close]
+        c = q.mean(axis=0)
+        n_new = np.linalg.svd(q - c, full_matrices=False)[2][-1]
+        if n_new @ n < 0:
+            n_new = -n_new
+        n, d = n_new, float(n_new @ c)
+    return n, d
+
+
+def _plane_face(plane: Plane, albedo: float, leaf_mm: float, cutoff_deg: float) -> FaceGrid:
+    """Leaves of the plane across the light's cone (camera frame; light at the origin, +z)."""
+    n, d = plane.normal, plane.offset_mm
+    foot = n * d                      # nearest plane point to the camera
+    reach = MAX_REACH * max(-d, 1.0)
+    # in-plane axes, the first as close to the image x axis as possible
+    e1 = np.array([1.0, 0.0, 0.0]) - n[0] * n
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    ang = np.radians(min(cutoff_deg, 89.0))
+    phi = np.linspace(0, 2 * np.pi, 72, endpoint=False)
+    dirs = np.stack([np.sin(ang) * np.cos(phi), np.sin(ang) * np.sin(phi),
+                     np.full_like(phi, np.cos(ang))], axis=1)
+    dirs = np.vstack([dirs, [0.0, 0.0, 1.0]])
+    along = dirs @ n
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.where(along < 0, d / along, np.inf)
+    pts = dirs * np.minimum(t, reach)[:, None]
+    uv = np.clip(np.stack([(pts - foot) @ e1, (pts - foot) @ e2], axis=1), -reach, reach)
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    nu = max(1, int(np.ceil((hi[0] - lo[0]) / leaf_mm)))
+    nv = max(1, int(np.ceil((hi[1] - lo[1]) / leaf_mm)))
+    gu, gv = np.meshgrid(lo[0] + (np.arange(nu) + 0.5) * (hi[0] - lo[0]) / nu,
+                         lo[1] + (np.arange(nv) + 0.5) * (hi[1] - lo[1]) / nv, indexing="ij")
+    centre = foot + gu[..., None] * e1 + gv[..., None] * e2
+    cos_axis = centre[..., 2] / np.linalg.norm(centre, axis=-1)
+    valid = cos_axis >= np.cos(np.radians(cutoff_deg))
+    area = np.full((nu, nv), (hi[0] - lo[0]) * (hi[1] - lo[1]) / (nu * nv))
+    return FaceGrid(centre, np.broadcast_to(n, centre.shape).copy(), area,
+                    np.full((nu, nv), float(albedo)), valid,
+                    ((hi[0] - lo[0]) / nu, (hi[1] - lo[1]) / nv))
+
+
+def plane_pixels(surface: SurfaceImage, plane: Plane, max_tilt_deg: float = 25.0) -> np.ndarray:
+    """(H, W) bool pixels lying on ``plane`` (within tolerance) and facing like it."""
+    points = surface.points_mm()
+    close = np.abs(points @ plane.normal - plane.offset_mm) <= _tolerance(points)
+    facing = np.nan_to_num(surface.normal @ plane.normal) >= np.cos(np.radians(max_tilt_deg))
+    return close & facing & surface.valid
+
+
+def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_MM,
+                       cutoff_deg: float = DEFAULT_CUTOFF_DEG,
+                       beam_deg: float = DEFAULT_BEAM_DEG, extend_plane: bool = True,
+                       others: tuple[tuple[SurfaceImage, np.ndarray], ...] = (),
+                       camera_to_world: np.ndarray | None = None) -> WorldModel:
+    """The world seen in a range image (plus, optionally, other views of the same scene).
+
+    The support plane, when one is found, replaces its pixels by an exact plane across the
+    light's whole cone (its pixels' noise would otherwise make a flat table light itself);
+    the other pixels are leaves as they are.
+
+    Args:
+        surface: the target view (pixel resolution); its pixels are the receivers later.
+        leaf_mm: leaf size of the plane, mm (image pixels are leaves as they are).
+        cutoff_deg, beam_deg: the light's cone.
+        extend_plane: fit the support plane and extend it across the cone.
+        others: other views as (surface, camera_to_world (4, 4) mm) in the same world frame.
+        camera_to_world: (4, 4) pose of the target view (None = identity: world = camera).
+
+    Returns:
+        WorldModel with depth-map visibility (space carving over all views).
+    """
+    pose = np.eye(4) if camera_to_world is None else np.asarray(camera_to_world, np.float64)
+    if pose.shape != (4, 4):
+        raise InputError(f"camera_to_world: expected (4, 4), got {pose.shape}")
+    notes: dict = {}
+    views = [depth_view(surface, pose)]
+    for _, other_pose in others:
+        views.append(depth_view(_, np.asarray(other_pose, np.float64)))
+    plane = fit_support_plane(surface.points_mm().reshape(-1, 3)) if extend_plane else None
+    on_plane = None if plane is None else plane_pixels(surface, plane)
+    faces = [surface_face(surface, pose, None if on_plane is None else ~on_plane)]
+    for other, other_pose in others:
+        faces.append(_unseen_part(other, np.asarray(other_pose, np.float64), views[:1]))
+    world_plane = None
+    if plane is not None and on_plane.any():
+        rho = float(np.median(surface.albedo[on_plane]))
+        faces.append(_moved(_plane_face(plane, rho, leaf_mm, cutoff_deg), pose))
+        rot = pose[:3, :3]
+        n_w = rot @ plane.normal
+        world_plane = np.r_[n_w, plane.offset_mm + n_w @ pose[:3, 3]]
+        notes["support_plane"] = {"normal": plane.normal.tolist(),
+                                  "offset_mm": plane.offset_mm,
+                                  "inlier_fraction": plane.inlier_fraction, "albedo": rho}
+    tree = build_tree(faces)
+    dv = DepthViews(np.stack([v[0] for v in views]), np.stack([v[1] for v in views]),
+                    np.stack([v[2] for v in views]))
+    light = camera_spot(pose, cutoff_deg, beam_deg)
+    lit = shadow_test_views(tree.centre[:tree.n_leaves], tree.normal[:tree.n_leaves],
+                            light.position, dv)
+    return WorldModel(tree, light, pose, views=dv, lit=lit, notes=notes,
+                      support_plane=world_plane)
+
+
+def _moved(face: FaceGrid, pose: np.ndarray) -> FaceGrid:
+    rot, t = pose[:3, :3], pose[:3, 3]
+    return FaceGrid(face.centre @ rot.T + t, face.normal @ rot.T, face.area, face.albedo,
+                    face.valid, face.step_mm)
+
+
+def _seen_by(points: np.ndarray, views: list) -> np.ndarray:
+    """(...) bool: points that project inside a view onto a valid range (that view has them)."""
+    out = np.zeros(points.shape[:-1], bool)
+    for w2c, kin, depth in views:
+        c = points @ w2c[:, :3].T + w2c[:, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.rint(kin[0] * c[..., 0] / c[..., 2] + kin[2])
+            v = np.rint(kin[1] * c[..., 1] / c[..., 2] + kin[3])
+        h, w = depth.shape
+        inside = (c[..., 2] > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
+        ui = np.where(inside, u, 0).astype(int)
+        vi = np.where(inside, v, 0).astype(int)
+        out |= inside & np.isfinite(depth[vi, ui])
+    return out
+
+
+def _unseen_part(other: SurfaceImage, pose: np.ndarray, target: list) -> FaceGrid:
+    """Pixels of another view that the target view does not have (no double counting)."""
+    face = surface_face(other, pose)
+    w2c, kin, depth = target[0]
+    c = face.centre @ w2c[:, :3].T + w2c[:, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.rint(kin[0] * c[..., 0] / c[..., 2] + kin[2])
+        v = np.rint(kin[1] * c[..., 1] / c[..., 2] + kin[3])
+    h, w = depth.shape
+    inside = (c[..., 2] > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
+    ui = np.where(inside, u, 0).astype(int)
+    vi = np.where(inside, v, 0).astype(int)
+    r = np.linalg.norm(c, axis=-1)
+    d = depth[vi, ui]
+    # the target sees this point itself: its own pixel is the leaf
+    same = inside & (np.abs(r - d) <= 2.0 + 0.01 * d)
+    face.valid &= ~same
+    return face
+
+
+__all__ = ["Plane", "fit_support_plane", "world_from_surface"]
