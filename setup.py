@@ -61,6 +61,9 @@ setup(
     ],
     extras_require={
         "ros": ROS_WHEELS,
+        # path-tracer reference (tof_mpd_ros.sim.pathtrace, benchmarks/render_golden_frames.py);
+        # its CPU variant needs a system LLVM library (Debian: libllvm19). Tests do not need it.
+        "pathtrace": ["mitsuba==3.9.1", "mitransient==1.3.1", "drjit==1.5.0"],
         "test": [
             "pytest>=8",
             "pytest-timeout>=2.3",

@@ -8,7 +8,9 @@ millimetres. The robot stands on the table, so the table top is the plane z = ``
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -117,6 +119,36 @@ class Scene:
                          "material_id": o.spec.material_id, "x_mm": o.x_mm, "y_mm": o.y_mm,
                          "z_mm": o.z_mm, "yaw_rad": o.yaw_rad} for o in self.objects],
         }
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Scene:
+        """Inverse of :meth:`as_dict`: ``Scene.from_dict(scene.as_dict())`` has the same table,
+        objects and floats as ``scene`` (so a ray cast of it is bit-identical), also after a JSON
+        round trip.
+
+        Raises:
+            InputError: a missing or malformed field.
+        """
+        try:
+            t = data["table"]
+            table = Table(height_mm=float(t["height_mm"]),
+                          centre_xy_mm=(float(t["centre_xy_mm"][0]), float(t["centre_xy_mm"][1])),
+                          half_extent_mm=(float(t["half_extent_mm"][0]),
+                                          float(t["half_extent_mm"][1])),
+                          albedo=float(t["albedo"]), material_id=int(t["material_id"]))
+            objects = []
+            for o in data["objects"]:
+                dims = tuple(float(v) for v in o["dims_mm"])
+                if len(dims) != 3:
+                    raise InputError(f"object dims_mm must have 3 entries, got {o['dims_mm']}")
+                spec = ObjectSpec(int(o["library_id"]), str(o["kind"]), dims, float(o["albedo"]),
+                                  int(o["material_id"]), float(o["apex_offset_mm"]))
+                objects.append(PlacedObject(spec, int(o["scene_index"]), float(o["x_mm"]),
+                                            float(o["y_mm"]), float(o["z_mm"]),
+                                            float(o["yaw_rad"])))
+            return cls(table, tuple(objects), str(data["split"]))
+        except (KeyError, TypeError, ValueError, IndexError) as err:
+            raise InputError(f"not a scene description ({type(err).__name__}: {err})") from err
 
     def top_height_mm(self) -> float:
         """z (base frame, mm) of the highest object top; the table top when empty."""
