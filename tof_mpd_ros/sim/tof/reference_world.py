@@ -20,10 +20,12 @@ Units: mm; the world frame is the target camera's frame unless poses are given.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from ...camera import Intrinsics
 from ...errors import InputError
 from ..surface import SurfaceImage
 from .transport import shadow_test_views
@@ -44,6 +46,21 @@ from .world import (
 MAX_REACH = 4.0
 #: a plane must hold this fraction of the valid pixels to be extended
 MIN_PLANE_FRACTION = 0.1
+
+
+@dataclass(frozen=True)
+class ReferenceView:
+    """Another reference image of the same scene, placed by its pose.
+
+    Attributes:
+        reference_mm: (H, W) float radial range in mm, NaN = missing.
+        camera_to_world_mm: (4, 4) float64 camera optical frame → world, mm.
+        albedo: (H, W) albedo, a scalar, or None (the default albedo).
+    """
+
+    reference_mm: np.ndarray
+    camera_to_world_mm: np.ndarray
+    albedo: np.ndarray | float | None = None
 
 
 @dataclass(frozen=True)
@@ -189,20 +206,26 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
         raise InputError(f"camera_to_world: expected (4, 4), got {pose.shape}")
     notes: dict = {}
     views = [depth_view(surface, pose)]
-    for _, other_pose in others:
-        views.append(depth_view(_, np.asarray(other_pose, np.float64)))
+    for other, other_pose in others:
+        if other.intrinsics.shape != surface.intrinsics.shape:
+            raise InputError("other views must have the target's image size")
+        views.append(depth_view(other, np.asarray(other_pose, np.float64)))
     plane = fit_support_plane(surface.points_mm().reshape(-1, 3)) if extend_plane else None
     on_plane = None if plane is None else plane_pixels(surface, plane)
-    faces = [surface_face(surface, pose, None if on_plane is None else ~on_plane)]
-    for other, other_pose in others:
-        faces.append(_unseen_part(other, np.asarray(other_pose, np.float64), views[:1]))
+    if on_plane is not None and not on_plane.any():
+        plane = on_plane = None
     world_plane = None
-    if plane is not None and on_plane.any():
+    if plane is not None:
+        n_w = pose[:3, :3] @ plane.normal
+        world_plane = np.r_[n_w, plane.offset_mm + n_w @ pose[:3, 3]]
+    faces = [surface_face(surface, pose, None if on_plane is None else ~on_plane)]
+    for j, (other, other_pose) in enumerate(others):
+        # what neither the target nor an earlier view has, and not the plane (exact below)
+        faces.append(_unseen_part(other, np.asarray(other_pose, np.float64), views[:j + 1],
+                                  world_plane))
+    if plane is not None:
         rho = float(np.median(surface.albedo[on_plane]))
         faces.append(_moved(_plane_face(plane, rho, leaf_mm, cutoff_deg), pose))
-        rot = pose[:3, :3]
-        n_w = rot @ plane.normal
-        world_plane = np.r_[n_w, plane.offset_mm + n_w @ pose[:3, 3]]
         notes["support_plane"] = {"normal": plane.normal.tolist(),
                                   "offset_mm": plane.offset_mm,
                                   "inlier_fraction": plane.inlier_fraction, "albedo": rho}
@@ -222,11 +245,13 @@ def _moved(face: FaceGrid, pose: np.ndarray) -> FaceGrid:
                     face.valid, face.step_mm)
 
 
-def _seen_by(points: np.ndarray, views: list) -> np.ndarray:
-    """(...) bool: points that project inside a view onto a valid range (that view has them)."""
-    out = np.zeros(points.shape[:-1], bool)
-    for w2c, kin, depth in views:
-        c = points @ w2c[:, :3].T + w2c[:, 3]
+def _unseen_part(other: SurfaceImage, pose: np.ndarray, seen: list,
+                 world_plane: np.ndarray | None) -> FaceGrid:
+    """Pixels of another view that no view in ``seen`` has (no double counting) and that do
+    not lie on the support plane (which is represented exactly)."""
+    face = surface_face(other, pose)
+    for w2c, kin, depth in seen:
+        c = face.centre @ w2c[:, :3].T + w2c[:, 3]
         with np.errstate(divide="ignore", invalid="ignore"):
             u = np.rint(kin[0] * c[..., 0] / c[..., 2] + kin[2])
             v = np.rint(kin[1] * c[..., 1] / c[..., 2] + kin[3])
@@ -234,28 +259,81 @@ def _seen_by(points: np.ndarray, views: list) -> np.ndarray:
         inside = (c[..., 2] > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
         ui = np.where(inside, u, 0).astype(int)
         vi = np.where(inside, v, 0).astype(int)
-        out |= inside & np.isfinite(depth[vi, ui])
-    return out
-
-
-def _unseen_part(other: SurfaceImage, pose: np.ndarray, target: list) -> FaceGrid:
-    """Pixels of another view that the target view does not have (no double counting)."""
-    face = surface_face(other, pose)
-    w2c, kin, depth = target[0]
-    c = face.centre @ w2c[:, :3].T + w2c[:, 3]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = np.rint(kin[0] * c[..., 0] / c[..., 2] + kin[2])
-        v = np.rint(kin[1] * c[..., 1] / c[..., 2] + kin[3])
-    h, w = depth.shape
-    inside = (c[..., 2] > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
-    ui = np.where(inside, u, 0).astype(int)
-    vi = np.where(inside, v, 0).astype(int)
-    r = np.linalg.norm(c, axis=-1)
-    d = depth[vi, ui]
-    # the target sees this point itself: its own pixel is the leaf
-    same = inside & (np.abs(r - d) <= 2.0 + 0.01 * d)
-    face.valid &= ~same
+        r = np.linalg.norm(c, axis=-1)
+        d = depth[vi, ui]
+        face.valid &= ~(inside & (np.abs(r - d) <= 2.0 + 0.01 * d))
+    if world_plane is not None:
+        n, d = world_plane[:3], world_plane[3]
+        close = np.abs(face.centre @ n - d) <= _tolerance(face.centre - pose[:3, 3])
+        face.valid &= ~(close & (face.normal @ n >= np.cos(np.radians(25.0))))
     return face
 
 
-__all__ = ["Plane", "fit_support_plane", "world_from_surface"]
+def fusion_views(references: Sequence[np.ndarray | None], poses_mm: Sequence[np.ndarray | None],
+                 intrinsics: Intrinsics, index: int, *, max_views: int = 4, window: int = 24,
+                 min_agreement: float = 0.6, min_points: int = 200) -> list[int]:
+    """Which other frames of a recording show the same scene as frame ``index``.
+
+    A candidate agrees when most of the target's off-plane points (objects, not the shared
+    table, which every scene of a cell has) that it sees land on its own reference. Among
+    the agreeing frames within ``window`` of the target, those looking from the most different
+    directions are chosen (they see what the target does not).
+
+    Args:
+        references: per frame (H, W) radial range in mm (NaN = missing), or None.
+        poses_mm: per frame (4, 4) camera → world in mm, or None.
+        intrinsics: intrinsics shared by the frames.
+        index: the target frame.
+        max_views: most views returned.
+        window: candidates are frames index ± window.
+        min_agreement: share of co-visible off-plane points that must agree.
+        min_points: co-visible off-plane points needed to judge.
+
+    Returns:
+        Indices of the chosen frames (possibly empty).
+    """
+    ref, pose = references[index], poses_mm[index]
+    if ref is None or pose is None:
+        return []
+    rays = intrinsics.ray_directions()
+    pts = rays * np.asarray(ref, np.float64)[..., None]
+    flat = pts.reshape(-1, 3)
+    plane = fit_support_plane(flat)
+    keep = np.all(np.isfinite(flat), axis=1)
+    if plane is not None:
+        keep &= np.abs(flat @ plane.normal - plane.offset_mm) > _tolerance(flat)
+    target = flat[keep][::max(1, int(keep.sum()) // 3000)]
+    if target.shape[0] < min_points:
+        return []
+    world = target @ pose[:3, :3].T + pose[:3, 3]
+    scored = []
+    lo, hi = max(0, index - window), min(len(references), index + window + 1)
+    for j in range(lo, hi):
+        if j == index or references[j] is None or poses_mm[j] is None:
+            continue
+        inv = np.linalg.inv(poses_mm[j])
+        c = world @ inv[:3, :3].T + inv[:3, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.rint(intrinsics.fx * c[:, 0] / c[:, 2] + intrinsics.cx)
+            v = np.rint(intrinsics.fy * c[:, 1] / c[:, 2] + intrinsics.cy)
+        inside = (c[:, 2] > 0) & (u >= 0) & (v >= 0) & (u < intrinsics.width) & \
+            (v < intrinsics.height)
+        d = np.asarray(references[j], np.float64)[np.where(inside, v, 0).astype(int),
+                                                  np.where(inside, u, 0).astype(int)]
+        seen = inside & np.isfinite(d)
+        if seen.sum() < min_points:
+            continue
+        agree = np.abs(np.linalg.norm(c, axis=1) - d) <= 2.0 + 0.01 * d
+        if (agree & seen).sum() >= min_agreement * seen.sum():
+            scored.append((float(pose[:3, 2] @ poses_mm[j][:3, 2]), j))
+    return [j for _, j in sorted(scored)[:max_views]]
+
+
+__all__ = [
+    "Plane",
+    "ReferenceView",
+    "fit_support_plane",
+    "fusion_views",
+    "plane_pixels",
+    "world_from_surface",
+]

@@ -15,6 +15,7 @@ Pipeline (each named effect can be switched off in :class:`.config.ToFConfig`):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -30,6 +31,7 @@ from .effects.phase_wrapping import PhaseWrapping
 from .phasor import direct_phasor, phasor_to_range, unwrap_to_guide
 from .rays import ray_directions
 from .reference import surface_from_reference
+from .reference_world import ReferenceView, world_from_surface
 from .registry import EFFECTS, effect_names
 from .world import WorldModel
 
@@ -245,11 +247,16 @@ def render_from_reference(reference_range: np.ndarray, intrinsics: Intrinsics,
                           config: ToFConfig | None = None,
                           rng: np.random.Generator | None = None, *, frame_index: int = 0,
                           motion: CameraMotion | None = None,
-                          material_id: np.ndarray | None = None) -> ToFMeasurement:
+                          material_id: np.ndarray | None = None,
+                          camera_to_world_mm: np.ndarray | None = None,
+                          other_views: Sequence[ReferenceView] = ()) -> ToFMeasurement:
     """Predict the ToF measurement of a scene given as a reference range image.
 
     The reference is the geometry: normals come from its gradient, missing pixels stay missing,
-    and mixed pixels are modelled by mixing each pixel's phasor with its neighbours.
+    and mixed pixels are modelled by mixing each pixel's phasor with its neighbours. Light
+    transport runs over the world inferred from it (:func:`.reference_world.world_from_surface`:
+    the support plane extended across the light's cone) and, given poses, over the surfaces
+    that only ``other_views`` of the same scene saw.
 
     Args:
         reference_range: (H, W) float radial range in mm, NaN = missing.
@@ -260,18 +267,31 @@ def render_from_reference(reference_range: np.ndarray, intrinsics: Intrinsics,
         frame_index: index of the frame in its sequence (temperature drift).
         motion: camera velocity during the frame (time offset), None = at rest.
         material_id: (H, W) int material index (subsurface), None = material 0.
+        camera_to_world_mm: (4, 4) pose of this view (mm), needed with ``other_views``.
+        other_views: other references of the same scene with their poses (same intrinsics).
 
     Returns:
         ToFMeasurement on the reference's pixel grid.
 
     Raises:
-        InputError: bad reference, intrinsics or albedo.
+        InputError: bad reference, intrinsics, albedo or views.
     """
     config = ToFConfig.nominal() if config is None else config
     rng = np.random.default_rng(0) if rng is None else rng
     surface = surface_from_reference(reference_range, intrinsics, albedo, material_id)
     _check_inputs(surface, config, rng, 1)
-    return _render(surface, config, rng, 1, frame_index, motion)
+    world = None
+    if other_views and config.effects["multipath"].enabled and surface.valid.any():
+        if camera_to_world_mm is None:
+            raise InputError("other_views need this view's camera_to_world_mm")
+        p = config.params("multipath")
+        others = tuple((surface_from_reference(v.reference_mm, intrinsics, v.albedo),
+                        np.asarray(v.camera_to_world_mm, np.float64)) for v in other_views)
+        world = world_from_surface(surface, leaf_mm=float(p["leaf_mm"]),
+                                   cutoff_deg=float(p["cutoff_deg"]),
+                                   beam_deg=float(p["beam_deg"]), others=others,
+                                   camera_to_world=camera_to_world_mm)
+    return _render(surface, config, rng, 1, frame_index, motion, world=world)
 
 
 __all__ = ["CameraMotion", "ToFMeasurement", "centre_samples",
