@@ -1,14 +1,62 @@
-"""Test-wide setup: keep every ROS process on loopback with its own domain, before rclpy loads."""
+"""Test-wide setup: keep every ROS process on loopback in this run's own domains, before rclpy
+loads."""
 
 from __future__ import annotations
 
 import os
 import tempfile
+from pathlib import Path
 
-# DDS discovery must never leave loopback on this machine; a private domain keeps parallel runs
-# apart. These must be set before rclpy is imported anywhere in the test session.
+import pytest
+
+#: ROS domain IDs a test run owns: a block of this many consecutive IDs. The test process's own
+#: (``ROS_DOMAIN_ID``) is the block's first; node tests take theirs with
+#: ``ros_harness.domain_id(offset)``, a fixed offset per test file.
+DOMAINS_PER_RUN = 8
+#: Blocks start at 1 + DOMAINS_PER_RUN * k and stay within 1..88: domain 0 is every ROS user's
+#: default, 91 the corrector benchmark's, and IDs above 101 collide with ephemeral ports on Linux.
+N_BLOCKS = 11
+
+
+def _claim_domain_block() -> int:
+    """First domain ID of a block no other test run on this host holds.
+
+    Each block has a lock file in the temporary directory, held (``flock``) for the life of this
+    process, so concurrent runs never share a block; the search starts at a block derived from
+    the pid. Should every block be taken (more than ``N_BLOCKS`` runs at once) or locking be
+    unavailable, the pid's block is used unlocked.
+    """
+    start = os.getpid() % N_BLOCKS
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        return 1 + DOMAINS_PER_RUN * start
+    for i in range(N_BLOCKS):
+        block = (start + i) % N_BLOCKS
+        path = Path(tempfile.gettempdir()) / f"tof_mpd_ros_test_domains_{block}.lock"
+        try:
+            handle = open(path, "a")  # held open (locked) until the process exits
+        except OSError:  # e.g. created by another user
+            continue
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            handle.close()
+            continue
+        _HELD.append(handle)
+        return 1 + DOMAINS_PER_RUN * block
+    return 1 + DOMAINS_PER_RUN * start
+
+
+_HELD: list = []  # the lock file of this run's block, open (and locked) until exit
+
+# DDS discovery must never leave loopback on this machine, and this run's domains are its own.
+# These must be set before rclpy is imported anywhere in the test session; node processes inherit
+# them (ros_harness.node_env sets each one's domain).
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-os.environ.setdefault("ROS_DOMAIN_ID", "37")
+os.environ["TOF_MPD_TEST_DOMAIN_BASE"] = str(_claim_domain_block())
+os.environ["TOF_MPD_TEST_DOMAINS_PER_RUN"] = str(DOMAINS_PER_RUN)
+os.environ["ROS_DOMAIN_ID"] = os.environ["TOF_MPD_TEST_DOMAIN_BASE"]
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="tof_mpd_ros_log_"))
 os.environ.setdefault("HOME", tempfile.gettempdir())
 os.environ.setdefault("MPLBACKEND", "Agg")
@@ -19,3 +67,23 @@ try:  # keep the 2-core machine usable by parallel test processes
     torch.set_num_threads(1)
 except ImportError:  # pragma: no cover - torch is a hard dependency, but keep conftest robust
     pass
+
+
+@pytest.fixture(scope="session")
+def azure_kinect_dir() -> Path:
+    """The real Azure Kinect frame (depth, IR, factory calibration).
+
+    It is data kept beside the repository, ``../shared/realdata/azure_kinect_mug``, looked up
+    relative to this checkout first and then where the package's real-data tools look by
+    default. It is neither in the package nor in an installable extra, so a checkout without it
+    skips the tests that need it (with this reason) instead of failing; beside the shared data,
+    as in the README's test environment, nothing skips.
+    """
+    from tof_mpd_ros.mismatch import realdata
+
+    for candidate in (Path(__file__).resolve().parents[2] / "shared" / "realdata"
+                      / "azure_kinect_mug", realdata.DEFAULT_DIR):
+        if realdata.is_azure_kinect_dir(candidate):
+            return candidate
+    pytest.skip("the real Azure Kinect frame (../shared/realdata/azure_kinect_mug beside the "
+                "repository) is not present")

@@ -38,7 +38,7 @@ def box_frame() -> tuple[ToFFrame, np.ndarray]:
     ("amplitude_bias", {"bias_mm": -5.0}),
 ])
 def test_predictor_equals_simulator_render(box_frame, name, params):
-    frame, ref = box_frame
+    frame, _ref = box_frame
     pred = FramePredictor(frame, QUIET, frame_index=7, albedo=np.full(K.shape, 0.5))
     cfg = QUIET.with_effect(name, **params)
     ours = pred.predict(cfg)

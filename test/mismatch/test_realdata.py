@@ -3,11 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.mismatch.realdata import (
-    DEFAULT_DIR,
     BrownConrady,
     azure_kinect_frame,
     plane_reference,
@@ -34,9 +32,8 @@ def test_plane_reference_of_two_planes():
     np.testing.assert_allclose(ref.reference_mm[ok], truth[ok], atol=3.0)
 
 
-@pytest.mark.skipif(not DEFAULT_DIR.exists(), reason="real data not available")
-def test_azure_kinect_frame_has_a_plane_reference():
-    frame, ref = azure_kinect_frame(downsample=8)
+def test_azure_kinect_frame_has_a_plane_reference(azure_kinect_dir):
+    frame, ref = azure_kinect_frame(azure_kinect_dir, downsample=8)
     assert frame.intrinsics.shape == (72, 80)
     ok = np.isfinite(frame.reference_mm) & np.isfinite(frame.range_mm)
     assert ok.mean() > 0.3

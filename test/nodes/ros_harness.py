@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -12,12 +13,22 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]
 
 
+def domain_id(offset: int) -> int:
+    """ROS domain ID number ``offset`` of this test run's block (test/conftest.py claims the
+    block, so a concurrent run on the same host uses other IDs). Each test file keeps its own
+    offsets, so the files' nodes never see each other either."""
+    base = int(os.environ["TOF_MPD_TEST_DOMAIN_BASE"])
+    if not 0 < offset < int(os.environ["TOF_MPD_TEST_DOMAINS_PER_RUN"]):
+        raise ValueError(f"domain offset {offset} is outside this run's block")
+    return base + offset
+
+
 def node_env(domain_id: int) -> dict[str, str]:
     """Environment for a node process: loopback-only DDS, its own domain and log directory."""
     env = dict(os.environ)
     env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(domain_id),
                PYTHONPATH=str(REPO) + os.pathsep + env.get("PYTHONPATH", ""))
-    env.setdefault("ROS_LOG_DIR", os.environ.get("ROS_LOG_DIR", "/tmp"))
+    env.setdefault("ROS_LOG_DIR", tempfile.gettempdir())
     return env
 
 

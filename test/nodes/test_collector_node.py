@@ -11,14 +11,14 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from ros_harness import start_node, stop_node  # noqa: E402
+from ros_harness import domain_id, start_node, stop_node  # noqa: E402
 
 from tof_mpd_ros.collection import session  # noqa: E402
 from tof_mpd_ros.collection.plan import sim_plan  # noqa: E402
 from tof_mpd_ros.recordings import RecordingReader  # noqa: E402
 from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
 
-DOMAIN = 61
+DOMAIN = domain_id(1)  # this run's own (test/conftest.py)
 COLLECTOR = {"settle_time_s": 0.1, "capture_timeout_s": 60.0, "exit_when_done": True}
 
 

@@ -1,16 +1,18 @@
-"""The corrector node in its own process (loopback only): a live simulated stream, bad input,
-corrupt weights and a real Azure Kinect frame.
+"""The corrector node in its own process (loopback only): a stream of simulated frames, bad
+input, corrupt weights and a real Azure Kinect frame.
 
 The weights are untrained (identity calibration, seeded networks): these tests check the node's
 plumbing (pairing, decoding, conventions, queueing, publishing, diagnostics), not the method's
-accuracy. Speed is a benchmark matter (benchmarks/bench_corrector_node.py, SPEC section 6): the
-live-stream test runs on a small crop, so that it checks "every frame corrected" rather than
-how fast this shared machine happens to be.
+accuracy. They check behaviour, not speed: every wait is for a condition, with a timeout generous
+enough for a machine shared with other busy processes, and no test counts on the node keeping up
+with a rate. Speed (30 Hz with no dropped frame) is measured by
+benchmarks/bench_corrector_node.py.
 """
 
 from __future__ import annotations
 
 import contextlib
+import itertools
 import json
 import time
 from collections.abc import Callable, Iterator
@@ -30,7 +32,7 @@ from rclpy.qos import (  # noqa: E402
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
-from ros_harness import spin_until, start_node, stop_node  # noqa: E402
+from ros_harness import domain_id, spin_until, start_node, stop_node  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image  # noqa: E402
 
 from tof_mpd_ros.camera import Intrinsics  # noqa: E402
@@ -45,7 +47,6 @@ from tof_mpd_ros.correction.depth_stream import (  # noqa: E402
 from tof_mpd_ros.correction.pipeline import CorrectionModel  # noqa: E402
 from tof_mpd_ros.correction.weights import load_weights, save_weights  # noqa: E402
 from tof_mpd_ros.image_encoding import image_to_array  # noqa: E402
-from tof_mpd_ros.mismatch import realdata  # noqa: E402
 from tof_mpd_ros.nodes.ros_messages import (  # noqa: E402
     camera_info_message,
     image_message,
@@ -53,15 +54,18 @@ from tof_mpd_ros.nodes.ros_messages import (  # noqa: E402
     stamp_ns,
 )
 
-# The real frame lives beside the repository (../shared) or, in a clone elsewhere, where the
-# package's real-data tools look for it by default.
-REALDATA = next((d for d in (Path(__file__).resolve().parents[3] / "shared" / "realdata"
-                             / "azure_kinect_mug", realdata.DEFAULT_DIR) if d.is_dir()),
-                realdata.DEFAULT_DIR)
-STREAM_DOMAIN, BAD_INPUT_DOMAIN, REAL_DOMAIN, WEIGHTS_DOMAIN = 62, 63, 64, 65
-PAPER = (140, 180)  # (H, W) of the paper's crop: the live-stream test's model and frames
+STREAM_DOMAIN, BAD_INPUT_DOMAIN, REAL_DOMAIN, WEIGHTS_DOMAIN = (domain_id(k) for k in (2, 3, 4, 5))
+PAPER = (140, 180)  # (H, W) of the paper's crop: the stream test's model and frames
 SMALL = (24, 32)  # (H, W) of the bad-input tests' model and frames
 OUTPUT = "/tof/depth_corrected/image"
+STREAM_FRAMES = 300  # frames the stream test sends (10 s of a 30 Hz camera)
+IN_FLIGHT = 2  # frames sent ahead of the outputs received; also the node's queue_size there
+DEPTH_OFFSETS_M = (0.0, 0.002, 0.005)  # added to each rendered view's depth: 6 distinct inputs
+STALL_S = 120.0  # the stream test gives up when no output came back for this long
+# sim_cell renders the stream test's views on topics of its own (the corrector does not see them).
+SIM_TOPICS = {"depth": (Image, "/sim/depth/image_raw"),
+              "amplitude": (Image, "/sim/amplitude/image_raw"),
+              "info": (CameraInfo, "/sim/camera_info")}
 # Test subscribers: best effort (matches sensor-data publishers) with a deep history, so a
 # busy test process does not lose what it is counting.
 DEEP = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST,
@@ -128,11 +132,60 @@ def start_corrector(weights_path: Path, domain_id: int, log: Path, **params: obj
                                     "diagnostics_period_s": 0.25, **params}, domain_id, log)
 
 
-def wait_for_corrector(lis: Listener, process, log: Path, timeout: float = 90.0) -> None:
+def wait_for_corrector(lis: Listener, process, log: Path, timeout: float = 300.0) -> None:
     """Until the corrector process publishes /diagnostics (it is up and spinning)."""
     ok = lis.spin_until(lambda: bool(lis.latest_values()) or process.poll() is not None,
                         timeout)
     assert ok and process.poll() is None, log.read_text()[-3000:]
+
+
+def node_count(lis: Listener, key: str) -> int:
+    """A counter of the corrector's newest /diagnostics (0 before the first)."""
+    return int(lis.latest_values().get(key, "0"))
+
+
+def first_round_trip(lis: Listener, publishers: list, messages: tuple,
+                     came_back: Callable[[int], bool], process, log: Path,
+                     timeout: float = 300.0) -> list[int]:
+    """Send ``messages`` (depth, amplitude, CameraInfo), freshly stamped, until
+    ``came_back(stamp)``; returns the stamps sent, in order.
+
+    CameraInfo goes alone first, until the node reports it (a pair that arrives before any
+    CameraInfo waits for it only a second). Then frames one at a time, the next only once the node
+    has published the previous one, so that its queue never holds two, until one comes back: an
+    output the node publishes before its publisher has found this process's subscription is not
+    delivered, and DDS discovery takes its time on a busy machine.
+    """
+    deadline = time.monotonic() + timeout
+
+    def check() -> None:
+        assert time.monotonic() < deadline and process.poll() is None, (
+            f"nothing came back; {lis.latest_values()}; log:\n{log.read_text()[-3000:]}")
+
+    while node_count(lis, "received_camera_info") < 1:
+        check()
+        send(publishers, (None, None, messages[2]), time.time_ns())
+        lis.spin_until(lambda: node_count(lis, "received_camera_info") >= 1, 0.5)
+    sent: list[int] = []
+    while not any(came_back(t) for t in sent):
+        check()
+        if node_count(lis, "published") >= len(sent):
+            sent.append(time.time_ns())
+            send(publishers, messages, sent[-1])
+        lis.spin_until(lambda: False, 0.1)
+    return sent
+
+
+def send(publishers: list, messages: tuple, stamp: int) -> None:
+    """Publish a (depth, amplitude, CameraInfo) triple (None: not that one), all stamped
+    ``stamp`` (ns); CameraInfo first, as a camera driver does."""
+    from builtin_interfaces.msg import Time
+
+    t = Time(sec=stamp // 1_000_000_000, nanosec=stamp % 1_000_000_000)
+    for i in (2, 0, 1):
+        if messages[i] is not None:
+            messages[i].header.stamp = t
+            publishers[i].publish(messages[i])
 
 
 def offline_output(model: CorrectionModel, depth: Image, amplitude: Image,
@@ -153,99 +206,146 @@ def decoded(msg: Image) -> np.ndarray:
                           bool(msg.is_bigendian), msg.data)
 
 
-# -- 1. a live simulated stream ------------------------------------------------------------
-def test_sim_cell_at_30_hz_every_frame_corrected_like_the_offline_pipeline(
-        weights: dict[str, Path], tmp_path: Path) -> None:
-    """sim_cell -> corrector -> this process, 20 s at 30 Hz: no drop, outputs == offline.
+# -- 1. a stream of simulated frames, every one corrected ------------------------------------
+def rendered_views(lis: Listener, sim, log: Path, n_views: int
+                   ) -> list[tuple[Image, Image, CameraInfo]]:
+    """(depth, amplitude, CameraInfo) of each of the ``n_views`` views sim_cell cycles through
+    on SIM_TOPICS (one stamp each, distinct depth images)."""
+    got: dict[str, dict[int, object]] = {key: {} for key in SIM_TOPICS}
+    for key, (kind, topic) in SIM_TOPICS.items():
+        lis.node.create_subscription(kind, topic,
+                                     lambda m, k=key: got[k].__setitem__(stamp_ns(m), m),
+                                     RELIABLE_DEEP)
 
-    The paper's 180x140 crop and the node's default work parameters (a 2-pair drop-oldest
-    queue, an input history of 5, one CPU thread). Every hop is reliable (sim_cell's
-    publishers, the corrector's subscriptions and publishers, this process's subscriptions), so
-    the test counts what the node does, not what best-effort DDS may lose on a busy host (a CI
-    run lost one 100 kB output between a corrector that had published it and this process).
-    The default best-effort path is measured by benchmarks/bench_corrector_node.py.
+    def views() -> dict[bytes, int]:
+        """Depth payload -> the first stamp that has all three messages."""
+        first: dict[bytes, int] = {}
+        for stamp in sorted(got["depth"]):
+            if stamp in got["amplitude"] and stamp in got["info"]:
+                first.setdefault(bytes(got["depth"][stamp].data), stamp)
+        return first
+
+    # Rendering takes a few seconds idle, minutes on a loaded machine: wait for it, not a clock.
+    assert lis.spin_until(lambda: len(views()) >= n_views or sim.poll() is not None, 500.0), \
+        log.read_text()[-3000:]
+    assert sim.poll() is None, log.read_text()[-3000:]
+    return [(got["depth"][t], got["amplitude"][t], got["info"][t])
+            for t in sorted(views().values())[:n_views]]
+
+
+def frame_variants(views: list[tuple[Image, Image, CameraInfo]]
+                   ) -> list[tuple[Image, Image, CameraInfo]]:
+    """Each view with each of DEPTH_OFFSETS_M added to its depth (NaN stays NaN): the inputs
+    the stream test cycles through, so that neighbouring frames differ."""
+    out = []
+    for depth, amplitude, info in views:
+        for offset in DEPTH_OFFSETS_M:
+            depth_m = decoded(depth) + np.float32(offset)
+            out.append((image_message(depth_m, depth.encoding, depth.header.frame_id),
+                        image_message(decoded(amplitude), amplitude.encoding,
+                                      amplitude.header.frame_id), info))
+    return out
+
+
+def test_every_frame_sent_comes_back_corrected_like_the_offline_pipeline(
+        weights: dict[str, Path], tmp_path: Path) -> None:
+    """This process -> corrector -> this process: STREAM_FRAMES frames at the paper's 180x140
+    crop, each comes back once, equal to the offline pipeline.
+
+    sim_cell renders two views; this process sends frames made from them (three depth offsets
+    per view, so that neighbouring frames differ), stamped like a 30 Hz camera, but never more
+    than IN_FLIGHT ahead of the corrected outputs it has received back. The node runs with
+    ``queue_size`` IN_FLIGHT, so its drop-oldest queue never has to drop, however slow or busy
+    the machine, and every hop is reliable (DDS does not lose a frame on a busy host). So the
+    node must publish every frame, exactly once, with its header, equal to
+    ``DepthStreamCorrector`` run offline on the same input, and count no drop. Whether it keeps
+    up with 30 Hz is measured by benchmarks/bench_corrector_node.py, not here.
     """
     h, w = PAPER
-    inputs: dict[str, dict[int, Image]] = {"depth": {}, "amplitude": {}}
-    outputs: dict[int, Image] = {}
-    infos: list[CameraInfo] = []
-    corrector = start_corrector(weights["paper"], STREAM_DOMAIN, tmp_path / "corrector.log",
-                                input_reliability="reliable", output_reliability="reliable")
-    sim = None
+    corrector_log, sim_log = tmp_path / "corrector.log", tmp_path / "sim_cell.log"
+    corrector = start_corrector(weights["paper"], STREAM_DOMAIN, corrector_log,
+                                queue_size=IN_FLIGHT, input_reliability="reliable",
+                                output_reliability="reliable")
+    sim = start_node("sim_cell", {"views": 2, "crop_width": w, "crop_height": h,
+                                  "publish_reference": False, "reliability": "reliable",
+                                  "depth_topic": SIM_TOPICS["depth"][1],
+                                  "amplitude_topic": SIM_TOPICS["amplitude"][1],
+                                  "camera_info_topic": SIM_TOPICS["info"][1]},
+                     STREAM_DOMAIN, sim_log)
+    returned: dict[int, list[Image]] = {}
     try:
         with listener(STREAM_DOMAIN) as lis:
             node = lis.node
-            node.create_subscription(Image, "/tof/depth/image_raw",
-                                     lambda m: inputs["depth"].__setitem__(stamp_ns(m), m),
-                                     RELIABLE_DEEP)
-            node.create_subscription(Image, "/tof/amplitude/image_raw",
-                                     lambda m: inputs["amplitude"].__setitem__(stamp_ns(m), m),
-                                     RELIABLE_DEEP)
-            node.create_subscription(CameraInfo, "/tof/camera_info", infos.append,
-                                     RELIABLE_DEEP)
-            node.create_subscription(Image, OUTPUT, lambda m: outputs.__setitem__(stamp_ns(m), m),
-                                     RELIABLE_DEEP)
-            wait_for_corrector(lis, corrector, tmp_path / "corrector.log")
-            sim = start_node("sim_cell", {"rate_hz": 30.0, "views": 2, "crop_width": w,
-                                          "crop_height": h, "publish_reference": False,
-                                          "reliability": "reliable"},
-                             STREAM_DOMAIN, tmp_path / "sim_cell.log")
-            # The window opens at the first output: the corrector and this process discover
-            # sim_cell independently, a second or so apart on a loaded machine.
-            assert lis.spin_until(lambda: len(outputs) > 0, 120), \
-                (tmp_path / "sim_cell.log").read_text()[-3000:]
-            first = min(outputs)
-            start = time.monotonic()
-            lis.spin_until(lambda: time.monotonic() - start > 20.0, 25.0)
-            # The window: 20 s of input. sim_cell keeps publishing until its outputs are in,
-            # because a reader discards the samples it has not taken yet when their writer
-            # leaves (a busy corrector would lose its last few frames to the shutdown).
-            window = sorted(t for t in inputs["depth"] if t >= first)
-            lis.spin_until(lambda: set(window) <= set(outputs), 15.0)
-            assert stop_node(sim) == 0, (tmp_path / "sim_cell.log").read_text()[-3000:]
-            lis.spin_until(lambda: False, 1.0)
-            # One more diagnostics period, so the counters include the last frame.
+            inputs = frame_variants(rendered_views(lis, sim, sim_log, 2))
+            assert stop_node(sim) == 0, sim_log.read_text()[-3000:]
+            node.create_subscription(
+                Image, OUTPUT, lambda m: returned.setdefault(stamp_ns(m), []).append(m),
+                RELIABLE_DEEP)
+            pubs = [node.create_publisher(kind, topic, RELIABLE_DEEP) for kind, topic in
+                    ((Image, "/tof/depth/image_raw"), (Image, "/tof/amplitude/image_raw"),
+                     (CameraInfo, "/tof/camera_info"))]
+            wait_for_corrector(lis, corrector, corrector_log)
+            assert lis.spin_until(lambda: all(p.get_subscription_count() >= 1 for p in pubs),
+                                  120.0)
+            # Warm-up: until a frame has made the round trip (discovery is done both ways).
+            warm = first_round_trip(lis, pubs, inputs[0], lambda t: t in returned, corrector,
+                                    corrector_log)
+
+            # The stream: frame i is input i % 6, stamped 1/30 s after frame i - 1.
+            t0 = time.time_ns()
+            stamps = [t0 + round(i * 1e9 / 30.0) for i in range(STREAM_FRAMES)]
+            which = {stamp: i % len(inputs) for i, stamp in enumerate(stamps)}
+            n_sent, n_back, last_progress = 0, 0, time.monotonic()
+            while n_back < STREAM_FRAMES:
+                if n_sent < STREAM_FRAMES and n_sent - n_back < IN_FLIGHT:
+                    send(pubs, inputs[which[stamps[n_sent]]], stamps[n_sent])
+                    n_sent += 1
+                    continue
+                lis.executor.spin_once(timeout_sec=0.05)
+                now_back = sum(1 for t in stamps[:n_sent] if t in returned)
+                if now_back > n_back:
+                    n_back, last_progress = now_back, time.monotonic()
+                elif time.monotonic() - last_progress > STALL_S or corrector.poll() is not None:
+                    break  # the node lost a frame (or died): report below
+            # The node's counters after its last frame (two diagnostics periods).
+            total = len(warm) + STREAM_FRAMES
+            lis.spin_until(lambda: node_count(lis, "published") >= total, 60.0)
             n_diag = len(lis.diagnostics)
-            lis.spin_until(lambda: len(lis.diagnostics) >= n_diag + 2, 5.0)
+            lis.spin_until(lambda: len(lis.diagnostics) >= n_diag + 2, 60.0)
             values = lis.latest_values()
         assert corrector.poll() is None, "the corrector exited"
     finally:
-        if sim is not None:
-            stop_node(sim)
+        stop_node(sim)
         code = stop_node(corrector)
-    log = (tmp_path / "corrector.log").read_text()
+    log = corrector_log.read_text()
     assert code == 0, log[-3000:]
 
-    n_in = len(window)
-    assert n_in >= 20 * 30 * 0.7, f"sim_cell published only {n_in} frames in 20 s"
-    assert set(window) <= set(inputs["amplitude"])
-    # The node dropped nothing: every pair it received was corrected and published (a depth
-    # image of the last tick may still wait for its amplitude when sim_cell stops).
+    # Every frame sent came back, once; the node dropped nothing and published each pair once.
+    lost = [i for i, t in enumerate(stamps) if t not in returned]
+    assert not lost, (f"{len(lost)} of {STREAM_FRAMES} frames without output (frames "
+                      f"{lost[:10]}...; {n_sent} sent); diagnostics {values}; log:\n{log[-3000:]}")
+    assert all(len(returned[t]) == 1 for t in stamps), "a frame came back twice"
+    assert set(returned) <= set(stamps) | set(warm), "an output with a stamp never sent"
     assert values["dropped_total"] == "0", str({k: v for k, v in values.items() if v != "0"})
-    published, received = int(values["published"]), int(values["received_depth"])
-    assert 0 <= received - published <= 1 and published >= n_in, values
-    # Every input in the window came out corrected.
-    in_window = {t for t in outputs if window[0] <= t <= window[-1]}
-    lost = sorted(set(window) - in_window)
-    assert not lost, (
-        f"{len(lost)} inputs without output of {n_in}, stamps {lost[0]}..{lost[-1]} (window "
-        f"{window[0]}..{window[-1]}); {len(outputs)} outputs in all; diagnostics {values}")
+    assert int(values["published"]) == int(values["received_depth"]) == \
+        int(values["received_amplitude"]) == total, values
 
-    # The published range equals the offline pipeline on the same input. sim_cell cycles
-    # through `views` rendered frames, so each distinct input is corrected offline once.
+    # The published range equals the offline pipeline on the same input.
     model = load_weights(weights["paper"])
-    expected: dict[bytes, np.ndarray] = {}
-    for stamp in sorted(in_window):
-        out, depth, amp = outputs[stamp], inputs["depth"][stamp], inputs["amplitude"][stamp]
-        key = bytes(depth.data) + bytes(amp.data)
-        if key not in expected:
-            expected[key] = offline_output(model, depth, amp, infos[-1])
+    expected: dict[int, np.ndarray] = {}
+    for stamp in stamps:
+        out, k = returned[stamp][0], which[stamp]
+        depth, amplitude, info = inputs[k]
+        if k not in expected:
+            expected[k] = offline_output(model, depth, amplitude, info)
         assert (out.encoding, out.height, out.width) == ("32FC1", h, w)
         assert out.header.frame_id == depth.header.frame_id
         got_mm = decoded(out).astype(np.float64) * 1000.0
-        np.testing.assert_array_equal(np.isnan(got_mm), np.isnan(expected[key]))
-        np.testing.assert_allclose(got_mm, expected[key], rtol=0, atol=1e-3, equal_nan=True)
-    assert len(expected) == 2
+        np.testing.assert_array_equal(np.isnan(got_mm), np.isnan(expected[k]))
+        np.testing.assert_allclose(got_mm, expected[k], rtol=0, atol=1e-3, equal_nan=True)
+    assert len(expected) == len(inputs) == 6
+    # Different inputs give different outputs: each frame really was its own input's.
+    assert len({bytes(returned[t][0].data) for t in stamps}) == len(inputs)
     assert "Traceback" not in log
 
 
@@ -292,12 +392,12 @@ class BadInputRig:
         return self.publish(image_message(depth_m, "32FC1"),
                             image_message(amplitude, "32FC1"), stamp_s)
 
-    def expect_corrected(self, timeout: float = 20.0) -> None:
+    def expect_corrected(self, timeout: float = 120.0) -> None:
         """A good frame still comes out (retried: sensor-data QoS is best effort)."""
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             stamp = self.publish_good()
-            if self.lis.spin_until(lambda s=stamp: s in self.outputs, 2.0):
+            if self.lis.spin_until(lambda s=stamp: s in self.outputs, 5.0):
                 break
         else:
             pytest.fail(f"no corrected output; log:\n{self.log.read_text()[-3000:]}")
@@ -306,14 +406,14 @@ class BadInputRig:
     def counter(self, reason: str) -> int:
         return int(self.lis.latest_values().get(f"dropped_{reason}", "0"))
 
-    def expect_drop(self, reason: str, before: int, timeout: float = 10.0) -> dict[str, str]:
+    def expect_drop(self, reason: str, before: int, timeout: float = 60.0) -> dict[str, str]:
         """The counter for ``reason`` grows, a /diagnostics message names it, the log too."""
         n_status = len(self.lis.statuses())
         assert self.lis.spin_until(lambda: self.counter(reason) > before, timeout), (
             self.lis.latest_values(), self.log.read_text()[-3000:])
         assert self.lis.spin_until(
-            lambda: any(reason in s.message for s in self.lis.statuses()[n_status - 1:]), 5.0)
-        assert self.lis.spin_until(lambda: f"dropped ({reason}" in self.log.read_text(), 5.0), \
+            lambda: any(reason in s.message for s in self.lis.statuses()[n_status - 1:]), 30.0)
+        assert self.lis.spin_until(lambda: f"dropped ({reason}" in self.log.read_text(), 30.0), \
             self.log.read_text()[-3000:]
         return self.lis.latest_values()
 
@@ -343,7 +443,7 @@ def rig(weights: dict[str, Path], tmp_path_factory: pytest.TempPathFactory
                             node.create_publisher(CameraInfo, "/tof/camera_info", qos), outputs)
             wait_for_corrector(lis, process, log)
             assert lis.spin_until(lambda: all(p.get_subscription_count() >= 1
-                                              for p in (r.depth, r.amplitude, r.info)), 30)
+                                              for p in (r.depth, r.amplitude, r.info)), 120)
             r.expect_corrected()
             yield r
             assert process.poll() is None, "the corrector exited"
@@ -404,7 +504,7 @@ def test_a_jump_back_in_time_restarts_pairing(rig: BadInputRig) -> None:
         stamps.append(rig.publish(*(image_message(a, "32FC1") for a in rig.frame()),
                                   stamp_s=t0 + i / 30.0))
         rig.lis.spin_until(lambda: False, 0.05)
-    assert rig.lis.spin_until(lambda: stamps[-1] in rig.outputs, 10.0), (
+    assert rig.lis.spin_until(lambda: stamps[-1] in rig.outputs, 60.0), (
         rig.lis.latest_values(), rig.log.read_text()[-2000:])
     values = rig.expect_drop("out_of_order", before)
     assert int(values["pairing_resets"]) >= 1
@@ -416,16 +516,26 @@ def test_amplitude_never_arriving_is_counted_and_reported(rig: BadInputRig) -> N
     before = rig.counter("no_amplitude")
     depth_m, _ = rig.frame()
     n_status = len(rig.lis.statuses())
-    for _ in range(15):  # more than the pairer keeps waiting for a partner
+
+    def missing() -> list:
+        return [s for s in rig.lis.statuses()[n_status:]
+                if "nothing on /tof/amplitude/image_raw" in s.message
+                or "no amplitude was ever received" in s.message]
+
+    # Depth only, at 10 Hz, until the node has dropped several for want of a partner (the pairer
+    # keeps 8 waiting) and /diagnostics has named the silent stream: at least 15 images.
+    deadline = time.monotonic() + 120.0
+    for i in itertools.count():
         rig.publish(image_message(depth_m, "32FC1"), None)
         rig.lis.spin_until(lambda: False, 0.1)
+        if i >= 15 and rig.counter("no_amplitude") >= before + 5 and missing():
+            break
+        assert time.monotonic() < deadline, (rig.lis.latest_values(),
+                                             [s.message for s in rig.lis.statuses()[-5:]])
     values = rig.expect_drop("no_amplitude", before)
     assert int(values["dropped_no_amplitude"]) >= before + 5
-    missing = [s for s in rig.lis.statuses()[n_status:]
-               if "nothing on /tof/amplitude/image_raw" in s.message
-               or "no amplitude was ever received" in s.message]
-    assert missing, [s.message for s in rig.lis.statuses()[-5:]]
-    assert missing[-1].level == DiagnosticStatus.ERROR
+    assert missing(), [s.message for s in rig.lis.statuses()[-5:]]
+    assert missing()[-1].level == DiagnosticStatus.ERROR
     rig.expect_corrected()
 
 
@@ -439,7 +549,8 @@ def test_diagnostics_report_every_reason_key_and_recover_to_ok(rig: BadInputRig)
     for _ in range(8):  # a clean stream for a few periods -> level OK again
         rig.publish_good()
         rig.lis.spin_until(lambda: False, 0.15)
-    assert rig.lis.spin_until(lambda: rig.lis.statuses()[-1].level == DiagnosticStatus.OK, 5.0), \
+    assert rig.lis.spin_until(lambda: rig.lis.statuses()[-1].level == DiagnosticStatus.OK,
+                              60.0), \
         [s.message for s in rig.lis.statuses()[-3:]]
 
 
@@ -448,11 +559,11 @@ def test_output_encoding_can_be_changed_while_running(rig: BadInputRig) -> None:
     from rclpy.parameter_client import AsyncParameterClient
 
     client = AsyncParameterClient(rig.lis.node, "corrector")
-    assert client.wait_for_services(timeout_sec=20.0)
+    assert client.wait_for_services(timeout_sec=120.0)
 
     def set_encoding(value: str):
         future = client.set_parameters([Parameter("output_encoding", value=value)])
-        assert rig.lis.spin_until(future.done, 10.0)
+        assert rig.lis.spin_until(future.done, 60.0)
         return future.result().results[0]
 
     assert not set_encoding("rgb8").successful  # refused with a reason
@@ -482,7 +593,7 @@ def test_unloadable_weights_stop_the_node_with_one_clear_line(
     log = tmp_path / "corrector.log"
     process = start_corrector(bad, WEIGHTS_DOMAIN, log)
     try:
-        code = process.wait(90)
+        code = process.wait(300)
     finally:
         stop_node(process)
     lines = [line for line in log.read_text().splitlines() if line.strip()]
@@ -498,7 +609,7 @@ def test_bad_parameters_stop_the_node_with_one_clear_line(
     log = tmp_path / "corrector.log"
     process = start_corrector(weights["small"], WEIGHTS_DOMAIN, log, **param)
     try:
-        code = process.wait(90)
+        code = process.wait(300)
     finally:
         stop_node(process)
     lines = [line for line in log.read_text().splitlines() if line.strip()]
@@ -530,18 +641,18 @@ def azure_kinect_nfov_unbinned_camera_info(calibration_json: Path) -> CameraInfo
                       p=[fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
 
 
-@pytest.mark.skipif(not REALDATA.is_dir(), reason="shared/realdata is not present")
-def test_real_azure_kinect_frame_comes_out_corrected(weights: dict[str, Path],
-                                                     tmp_path: Path) -> None:
-    depth = np.load(REALDATA / "depth_000.npy")   # (576, 640) uint16 mm, 0 = invalid
-    ir = np.load(REALDATA / "ir_000.npy")         # (576, 640) uint16, saturates at 65535
+def test_real_azure_kinect_frame_comes_out_corrected(weights: dict[str, Path], tmp_path: Path,
+                                                     azure_kinect_dir: Path) -> None:
+    depth = np.load(azure_kinect_dir / "depth_000.npy")   # (576, 640) uint16 mm, 0 = invalid
+    ir = np.load(azure_kinect_dir / "ir_000.npy")         # (576, 640) uint16, saturates at 65535
     assert depth.shape == ir.shape == (576, 640) and (ir == 65535).any() and (depth == 0).any()
-    info = azure_kinect_nfov_unbinned_camera_info(REALDATA / "calibration.json")
+    info = azure_kinect_nfov_unbinned_camera_info(azure_kinect_dir / "calibration.json")
     assert 500 < info.k[0] < 510 and 320 < info.k[2] < 345 and 330 < info.k[5] < 360
     log = tmp_path / "corrector.log"
     # A 640x576 frame is ~0.7 MB: like the Azure Kinect driver, publish it reliably (best effort
-    # loses fragments of frames this large on a busy host).
-    process = start_corrector(weights["paper"], REAL_DOMAIN, log, input_reliability="reliable")
+    # loses fragments of frames this large on a busy host); the outputs are reliable too.
+    process = start_corrector(weights["paper"], REAL_DOMAIN, log, input_reliability="reliable",
+                              output_reliability="reliable")
     got: dict[str, dict[int, object]] = {"depth": {}, "info": {}, "edges": {}, "confidence": {}}
     try:
         with listener(REAL_DOMAIN) as lis:
@@ -552,33 +663,28 @@ def test_real_azure_kinect_frame_comes_out_corrected(weights: dict[str, Path],
                                      ("confidence", f"{base}/confidence", Image)):
                 node.create_subscription(kind, topic,
                                          lambda m, k=key: got[k].__setitem__(stamp_ns(m), m),
-                                         DEEP)
-            pubs = [node.create_publisher(kind, topic, 10) for kind, topic in
+                                         RELIABLE_DEEP)
+            pubs = [node.create_publisher(kind, topic, RELIABLE_DEEP) for kind, topic in
                     ((Image, "/tof/depth/image_raw"), (Image, "/tof/amplitude/image_raw"),
                      (CameraInfo, "/tof/camera_info"))]
             wait_for_corrector(lis, process, log)
-            assert lis.spin_until(lambda: all(p.get_subscription_count() >= 1 for p in pubs), 30)
-            deadline = time.monotonic() + 60
-            stamp = None
-            while time.monotonic() < deadline:  # best effort: retry until it comes through
-                t = node.get_clock().now().to_msg()
-                msgs = (image_message(depth, "16UC1", "depth_camera_link"),
-                        image_message(ir, "mono16", "depth_camera_link"), info)
-                for msg, pub in zip(msgs, pubs, strict=True):
-                    msg.header.stamp = t
-                    pub.publish(msg)
-                stamp = t.sec * 1_000_000_000 + t.nanosec
-                if lis.spin_until(lambda s=stamp: all(s in v for v in got.values()), 5.0):
-                    break
-            else:
-                pytest.fail(f"no output; {lis.latest_values()}; log:\n{log.read_text()[-3000:]}")
+            assert lis.spin_until(lambda: all(p.get_subscription_count() >= 1 for p in pubs),
+                                  120.0)
+            msgs = (image_message(depth, "16UC1", "depth_camera_link"),
+                    image_message(ir, "mono16", "depth_camera_link"), info)
+            sent = first_round_trip(lis, pubs, msgs,
+                                    lambda s: all(s in v for v in got.values()), process, log)
+            stamp = next(s for s in sent if all(s in v for v in got.values()))
+            lis.spin_until(lambda: node_count(lis, "published") >= len(sent), 60.0)
             n_diag = len(lis.diagnostics)
-            lis.spin_until(lambda: len(lis.diagnostics) >= n_diag + 2, 5.0)
+            lis.spin_until(lambda: len(lis.diagnostics) >= n_diag + 2, 60.0)
             values = lis.latest_values()
     finally:
         code = stop_node(process)
     assert code == 0, log.read_text()[-3000:]
+    # Every frame sent (one, or more while discovery completed) was corrected and published.
     assert values["dropped_total"] == "0", values
+    assert int(values["published"]) == len(sent), values
 
     out, out_info = got["depth"][stamp], got["info"][stamp]
     assert (out.encoding, out.width, out.height) == ("16UC1", 180, 140)

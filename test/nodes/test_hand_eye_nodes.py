@@ -17,7 +17,7 @@ import pytest
 
 rclpy = pytest.importorskip("rclpy")
 
-from ros_harness import start_node, stop_node  # noqa: E402
+from ros_harness import domain_id, start_node, stop_node  # noqa: E402
 
 from tof_mpd_ros.arm.ur_pose import matrix_to_pose_vector  # noqa: E402
 from tof_mpd_ros.cli.main import main  # noqa: E402
@@ -33,8 +33,9 @@ from tof_mpd_ros.sim.poses import pose_mm_to_m  # noqa: E402
 from tof_mpd_ros.sim.structured_light import StructuredLightConfig  # noqa: E402
 from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
 
-DOMAIN = 74
-SCENE_DOMAIN = 75  # the scene sim_cell starts early (its first frame takes a while) on its own
+# This run's own domains (test/conftest.py); the scene sim_cell starts early (its first frame
+# takes a while) on a domain of its own.
+DOMAIN, SCENE_DOMAIN = domain_id(6), domain_id(7)
 VIEWS = 10
 TRUE_HAND_EYE = perturb_pose(DEFAULT_T_FLANGE_CAMERA_M, np.random.default_rng(5))
 FAST = {"settle_time_s": 0.1, "capture_timeout_s": 60.0, "speed": 1.0, "accel": 5.0}

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import threading
-import time
 
 import pytest
 
@@ -45,20 +44,21 @@ def test_history_bounds_memory() -> None:
 
 
 def test_worker_drops_oldest_when_consumer_is_slow() -> None:
-    release = threading.Event()
+    started, release = threading.Event(), threading.Event()
     seen: list[int] = []
 
     def slow(item: int) -> None:
-        release.wait(5)
+        started.set()
+        assert release.wait(60)
         seen.append(item)
 
     worker: LatestQueueWorker[int] = LatestQueueWorker(slow, maxsize=2)
-    worker.submit(0)                 # taken by the worker, blocks in slow()
-    time.sleep(0.05)
+    worker.submit(0)
+    assert started.wait(60)          # the worker has taken item 0 and blocks in slow()
     for i in range(1, 6):            # queue holds 2: items 1..3 are dropped, 4 and 5 kept
         worker.submit(i)
     release.set()
-    assert worker.drain(5)
+    assert worker.drain(60)
     worker.stop()
     assert seen == [0, 4, 5]
     assert worker.dropped == 3 and worker.processed == 3
@@ -74,7 +74,7 @@ def test_worker_survives_a_failing_item() -> None:
     worker: LatestQueueWorker[int] = LatestQueueWorker(process, maxsize=4, on_error=errors.append)
     for i in range(3):
         worker.submit(i)
-    assert worker.drain(5)
+    assert worker.drain(60)
     worker.stop()
     assert worker.processed == 2 and worker.failed == 1
     assert isinstance(errors[0], ValueError)

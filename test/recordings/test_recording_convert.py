@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -13,12 +15,25 @@ from tof_mpd_ros.errors import InputError
 from tof_mpd_ros.recordings import convert, msgdefs
 
 
+def installed_msg_file(msgtype: str) -> Path | None:
+    """``<prefix>/share/<pkg>/msg/<Name>.msg`` of ``pkg/msg/Name`` where ROS installed it: an
+    ament prefix (``AMENT_PREFIX_PATH``, e.g. /opt/ros/jazzy) or this interpreter's prefix (the
+    ``ros`` extra's wheels install into the virtual environment); None if neither has it."""
+    pkg, _, name = msgtype.split("/")
+    prefixes = [p for p in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep) if p]
+    for prefix in (*prefixes, sys.prefix):
+        path = Path(prefix) / "share" / pkg / "msg" / f"{name}.msg"
+        if path.is_file():
+            return path
+    return None
+
+
 @pytest.mark.parametrize("msgtype", msgdefs.known_types())
 def test_embedded_definitions_are_the_jazzy_msg_files(msgtype):
-    pkg, _, name = msgtype.split("/")
-    source = Path("/work/venv/share") / pkg / "msg" / f"{name}.msg"
-    if not source.exists():
-        pytest.skip("ROS message files not installed here")
+    source = installed_msg_file(msgtype)
+    if source is None:  # the only reason to skip: the ROS message packages are absent
+        pytest.skip(f"{msgtype}.msg is not installed: neither an ament prefix nor {sys.prefix} "
+                    "has it (the 'ros' extra or a ROS install provides it)")
     assert msgdefs.MSG_TEXT[msgtype] == source.read_text()
 
 
