@@ -43,6 +43,9 @@ SURFACE_OFFSET_MM = 0.5
 MAX_SPREAD = 0.3
 #: bounce receivers stay coarse where they get less than this share of the brightest one
 REFINE_FRACTION = 0.02
+#: neighbouring anchors whose irradiance magnitudes differ more than this factor are not
+#: interpolated between
+INTERPOLATION_SPREAD = 1.15
 #: stack depth of the tree walk (tree depth is ~2 log2(leaves per face))
 _STACK = 256
 
@@ -368,9 +371,50 @@ def _snap_to_plane(pos: np.ndarray, nrm: np.ndarray, plane: np.ndarray,
     return pos, nrm
 
 
+def _interpolable(rx_pos: np.ndarray, rx_nrm: np.ndarray, valid: np.ndarray
+                  ) -> tuple[np.ndarray, list[tuple[np.ndarray, np.ndarray]]]:
+    """Which pixels take their irradiance from neighbouring anchors (even row and column).
+
+    A pixel is interpolated when every anchor around it (2 along a row or column, 4 on the
+    diagonals) is a receiver on the same smooth surface: normals within ~10° and points within
+    2 mm + 1 % of each other. Elsewhere (depth edges, creases, the crop's border) it is
+    gathered itself.
+
+    Args:
+        rx_pos, rx_nrm: (H, W, 3) receiver points and normals (NaN where not a receiver).
+        valid: (H, W) bool receivers.
+
+    Returns:
+        anchors: (H, W) bool the pixels gathered first.
+        groups: per parity class, ((A, 2) int (dv, du) offsets to its anchors, (H, W) bool the
+            pixels that take the mean of those anchors).
+    """
+    h, w = valid.shape
+    v, u = np.mgrid[0:h, 0:w]
+    anchors = valid & (v % 2 == 0) & (u % 2 == 0)
+    groups = []
+    for parity, offsets in (((1, 0), [(-1, 0), (1, 0)]), ((0, 1), [(0, -1), (0, 1)]),
+                            ((1, 1), [(-1, -1), (-1, 1), (1, -1), (1, 1)])):
+        pick = valid & (v % 2 == parity[0]) & (u % 2 == parity[1])
+        ok = pick.copy()
+        for dv, du in offsets:
+            vv = np.clip(v + dv, 0, h - 1)
+            uu = np.clip(u + du, 0, w - 1)
+            inside = (v + dv >= 0) & (v + dv < h) & (u + du >= 0) & (u + du < w)
+            same = anchors[vv, uu] & inside
+            dn = np.einsum("hwk,hwk->hw", rx_nrm, rx_nrm[vv, uu])
+            gap = np.linalg.norm(rx_pos - rx_pos[vv, uu], axis=-1)
+            scale = 2.0 + 0.01 * np.linalg.norm(rx_pos, axis=-1)
+            ok &= same & (np.nan_to_num(dn) > 0.985) & (np.nan_to_num(gap, nan=np.inf)
+                                                          <= scale * 2.5)
+        groups.append((np.array(offsets), ok))
+    return anchors, groups
+
+
 def indirect_phasor(surface: SurfaceImage, world, *, mod_freq_hz: float, light_power: float,
                     bounces: int = 2, open_ratio: float = 3.0, bounce_patch_mm: float = 8.0,
-                    receivers: np.ndarray | None = None) -> np.ndarray:
+                    receivers: np.ndarray | None = None,
+                    interpolate: bool = True) -> np.ndarray:
     """Indirect phasor arriving at every pixel of ``surface`` through ``bounces`` bounces.
 
     Args:
@@ -383,7 +427,10 @@ def indirect_phasor(surface: SurfaceImage, world, *, mod_freq_hz: float, light_p
         open_ratio: a node is gathered whole when farther than this many radii.
         bounce_patch_mm: patch size at which bounces after the first are gathered, mm.
         receivers: (H, W) bool, the pixels whose indirect light is computed (None = all); the
-            others get 0. Each receiver's value does not depend on it.
+            others get 0.
+        interpolate: gather at every other pixel of each row and column and interpolate the
+            irradiance between them on smooth surfaces (about 3× faster; see
+            :func:`_interpolable`), gathering the rest — edges and creases — themselves.
 
     Returns:
         (H, W) complex128 indirect phasor (same amplitude units as the direct return); 0 where
@@ -400,18 +447,38 @@ def indirect_phasor(surface: SurfaceImage, world, *, mod_freq_hz: float, light_p
                                  bounces=bounces, open_ratio=open_ratio,
                                  bounce_patch_mm=bounce_patch_mm)
     total = np.sum(emissions, axis=0)
-    vv, uu = np.nonzero(valid)
-    points = ray_directions(surface.intrinsics)[vv, uu] * surface.range_mm[vv, uu, None]
     pose = world.camera_to_world
-    rx_pos = points @ pose[:3, :3].T + pose[:3, 3]
-    rx_nrm = surface.normal[vv, uu] @ pose[:3, :3].T
+    points = ray_directions(surface.intrinsics) * surface.range_mm[..., None]
+    rx_pos = np.where(valid[..., None], points @ pose[:3, :3].T + pose[:3, 3], np.nan)
+    rx_nrm = np.where(valid[..., None], surface.normal @ pose[:3, :3].T, np.nan)
     if world.support_plane is not None:
-        rx_pos, rx_nrm = _snap_to_plane(rx_pos, rx_nrm, world.support_plane)
+        rx_pos[valid], rx_nrm[valid] = _snap_to_plane(rx_pos[valid], rx_nrm[valid],
+                                                      world.support_plane)
     k_path = 2.0 * math.pi * mod_freq_hz / SPEED_OF_LIGHT_MM_S
-    e = _gather_tree(rx_pos, rx_nrm, world.tree, total, k_path, open_ratio,
-                     _vis_args(world.scene, world.views))
-    r = surface.range_mm[vv, uu]
-    out[vv, uu] = surface.albedo[vv, uu] * np.exp(1j * k_path * r) * e
+    vis = _vis_args(world.scene, world.views)
+    irradiance = np.zeros((h, w), dtype=np.complex128)
+    todo = valid
+    if interpolate:
+        anchors, groups = _interpolable(rx_pos, rx_nrm, valid)
+        irradiance[anchors] = _gather_tree(rx_pos[anchors], rx_nrm[anchors], world.tree, total,
+                                           k_path, open_ratio, vis)
+        todo = valid & ~anchors
+        v, u = np.mgrid[0:h, 0:w]
+        for offsets, ok in groups:
+            vv, uu = v[ok], u[ok]
+            near = np.array([irradiance[vv + dv, uu + du] for dv, du in offsets])
+            mag = np.abs(near)
+            # where the anchors disagree the field is steep (near a crease): gather instead
+            smooth = mag.max(axis=0) <= INTERPOLATION_SPREAD * mag.min(axis=0) + 1e-12 * \
+                (1.0 + mag.max(axis=0))
+            irradiance[vv[smooth], uu[smooth]] = near[:, smooth].mean(axis=0)
+            ok[vv[~smooth], uu[~smooth]] = False
+            todo = todo & ~ok
+    if todo.any():
+        irradiance[todo] = _gather_tree(rx_pos[todo], rx_nrm[todo], world.tree, total, k_path,
+                                        open_ratio, vis)
+    r = np.where(valid, surface.range_mm, 0.0)
+    out[valid] = (surface.albedo * np.exp(1j * k_path * r) * irradiance)[valid]
     return out
 
 

@@ -40,7 +40,7 @@ DEFAULT_LEAF_MM = 4.0
 #: default spot cone: intensity constant up to the beam angle, falling linearly in angle to 0
 #: at the cutoff (Mitsuba's ``spot`` emitter profile)
 DEFAULT_CUTOFF_DEG = 60.0
-DEFAULT_BEAM_DEG = 45.0
+DEFAULT_BEAM_DEG = 50.0
 #: the table is tessellated at most this many camera heights from the camera's nadir
 MAX_TABLE_REACH = 4.0
 
