@@ -21,6 +21,7 @@ from tof_mpd_ros.sim.scene import make_scene
 from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M
 
 HAND_EYE = DEFAULT_T_FLANGE_CAMERA_M
+START_S = 120.0  # the arm client's start-up on a busy machine (its connect timeout is not tested)
 VIEWS = 4
 
 
@@ -64,7 +65,7 @@ def test_bad_plan_file_is_a_clear_error(tmp_path: Path) -> None:
 
 
 def test_arm_crash_mid_plan_then_resume_records_every_view_once(plan, tmp_path: Path) -> None:
-    with IsolatedArm("sim", faults={"crash_on_move": 3}) as arm:
+    with IsolatedArm("sim", connect_timeout_s=START_S, faults={"crash_on_move": 3}) as arm:
         first = run(tmp_path, plan, arm)
     assert first.recorded == [0, 1] and first.failed_view == 2
     assert "died" in first.error
@@ -72,7 +73,7 @@ def test_arm_crash_mid_plan_then_resume_records_every_view_once(plan, tmp_path: 
     done = session.completed_views(tmp_path, plan, HAND_EYE)
     assert done == {0: 1, 1: 1, 2: 0, 3: 0}
     pending = [v for v in plan if done[v.index] == 0]
-    with IsolatedArm("sim") as arm:
+    with IsolatedArm("sim", connect_timeout_s=START_S) as arm:
         second = run(tmp_path, pending, arm)
     assert second.ok and second.recorded == [2, 3]
     assert session.completed_views(tmp_path, plan, HAND_EYE) == {i: 1 for i in range(VIEWS)}
@@ -80,7 +81,7 @@ def test_arm_crash_mid_plan_then_resume_records_every_view_once(plan, tmp_path: 
 
 
 def test_recorded_frames_hold_tcp_pose_and_hand_eye(plan, tmp_path: Path) -> None:
-    with IsolatedArm("sim") as arm:
+    with IsolatedArm("sim", connect_timeout_s=START_S) as arm:
         result = run(tmp_path, plan[:2], arm)
     assert result.recorded == [0, 1]
     with RecordingReader(session.parts(tmp_path)[0]) as reader:
@@ -94,6 +95,6 @@ def test_capture_timeouts_skip_the_view_and_are_reported(plan, tmp_path: Path) -
     def never(after_ns: int, pose: np.ndarray):
         raise CaptureError("nothing on the topics")
 
-    with IsolatedArm("sim") as arm:
+    with IsolatedArm("sim", connect_timeout_s=START_S) as arm:
         result = run(tmp_path, plan[:2], arm, capture=never)
     assert result.ok and result.recorded == [] and result.skipped == [0, 1]

@@ -44,7 +44,7 @@ def start_node(executable: str, params: dict[str, object], domain_id: int,
                                 stderr=subprocess.STDOUT)
 
 
-def stop_node(process: subprocess.Popen, timeout: float = 10.0) -> int:
+def stop_node(process: subprocess.Popen, timeout: float = 60.0) -> int:
     """SIGINT (like Ctrl-C), then kill if it does not exit."""
     if process.poll() is None:
         process.send_signal(2)

@@ -19,7 +19,9 @@ from tof_mpd_ros.recordings import RecordingReader  # noqa: E402
 from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
 
 DOMAIN = domain_id(1)  # this run's own (test/conftest.py)
-COLLECTOR = {"settle_time_s": 0.1, "capture_timeout_s": 60.0, "exit_when_done": True}
+# Timeouts for a busy machine: the arm client is a child interpreter, a frame a fresh render.
+COLLECTOR = {"settle_time_s": 0.1, "capture_timeout_s": 120.0, "connect_timeout_s": 120.0,
+             "exit_when_done": True}
 
 
 @pytest.fixture(scope="module")

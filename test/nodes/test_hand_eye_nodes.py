@@ -38,7 +38,9 @@ from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
 DOMAIN, SCENE_DOMAIN = domain_id(6), domain_id(7)
 VIEWS = 10
 TRUE_HAND_EYE = perturb_pose(DEFAULT_T_FLANGE_CAMERA_M, np.random.default_rng(5))
-FAST = {"settle_time_s": 0.1, "capture_timeout_s": 60.0, "speed": 1.0, "accel": 5.0}
+# Timeouts for a busy machine: the arm client is a child interpreter, a frame a fresh render.
+FAST = {"settle_time_s": 0.1, "capture_timeout_s": 120.0, "connect_timeout_s": 120.0,
+        "speed": 1.0, "accel": 5.0}
 
 
 def pose_param(matrix: np.ndarray) -> str:
