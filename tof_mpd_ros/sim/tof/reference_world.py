@@ -39,7 +39,7 @@ from .world import (
     build_tree,
     camera_spot,
     depth_view,
-    surface_face,
+    surface_faces,
 )
 
 #: the plane is extended at most this many camera distances from the camera
@@ -218,11 +218,12 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
     if plane is not None:
         n_w = pose[:3, :3] @ plane.normal
         world_plane = np.r_[n_w, plane.offset_mm + n_w @ pose[:3, 3]]
-    faces = [surface_face(surface, pose, None if on_plane is None else ~on_plane)]
+    faces = surface_faces(surface, pose, None if on_plane is None else ~on_plane)
     for j, (other, other_pose) in enumerate(others):
         # what neither the target nor an earlier view has, and not the plane (exact below)
-        faces.append(_unseen_part(other, np.asarray(other_pose, np.float64), views[:j + 1],
-                                  world_plane))
+        other_pose = np.asarray(other_pose, np.float64)
+        faces += surface_faces(other, other_pose,
+                               _unseen_pixels(other, other_pose, views[:j + 1], world_plane))
     if plane is not None:
         rho = float(np.median(surface.albedo[on_plane]))
         faces.append(_moved(_plane_face(plane, rho, leaf_mm, cutoff_deg), pose))
@@ -245,13 +246,14 @@ def _moved(face: FaceGrid, pose: np.ndarray) -> FaceGrid:
                     face.valid, face.step_mm)
 
 
-def _unseen_part(other: SurfaceImage, pose: np.ndarray, seen: list,
-                 world_plane: np.ndarray | None) -> FaceGrid:
-    """Pixels of another view that no view in ``seen`` has (no double counting) and that do
-    not lie on the support plane (which is represented exactly)."""
-    face = surface_face(other, pose)
+def _unseen_pixels(other: SurfaceImage, pose: np.ndarray, seen: list,
+                   world_plane: np.ndarray | None) -> np.ndarray:
+    """(H, W) bool pixels of another view that no view in ``seen`` has (no double counting)
+    and that do not lie on the support plane (which is represented exactly)."""
+    p = other.points_mm() @ pose[:3, :3].T + pose[:3, 3]
+    keep = other.valid.copy()
     for w2c, kin, depth in seen:
-        c = face.centre @ w2c[:, :3].T + w2c[:, 3]
+        c = p @ w2c[:, :3].T + w2c[:, 3]
         with np.errstate(divide="ignore", invalid="ignore"):
             u = np.rint(kin[0] * c[..., 0] / c[..., 2] + kin[2])
             v = np.rint(kin[1] * c[..., 1] / c[..., 2] + kin[3])
@@ -259,14 +261,14 @@ def _unseen_part(other: SurfaceImage, pose: np.ndarray, seen: list,
         inside = (c[..., 2] > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
         ui = np.where(inside, u, 0).astype(int)
         vi = np.where(inside, v, 0).astype(int)
-        r = np.linalg.norm(c, axis=-1)
         d = depth[vi, ui]
-        face.valid &= ~(inside & (np.abs(r - d) <= 2.0 + 0.01 * d))
+        keep &= ~(inside & (np.abs(np.linalg.norm(c, axis=-1) - d) <= 2.0 + 0.01 * d))
     if world_plane is not None:
         n, d = world_plane[:3], world_plane[3]
-        close = np.abs(face.centre @ n - d) <= _tolerance(face.centre - pose[:3, 3])
-        face.valid &= ~(close & (face.normal @ n >= np.cos(np.radians(25.0))))
-    return face
+        close = np.abs(p @ n - d) <= _tolerance(p - pose[:3, 3])
+        facing = np.nan_to_num(other.normal @ pose[:3, :3].T @ n) >= np.cos(np.radians(25.0))
+        keep &= ~(close & facing)
+    return keep
 
 
 def fusion_views(references: Sequence[np.ndarray | None], poses_mm: Sequence[np.ndarray | None],

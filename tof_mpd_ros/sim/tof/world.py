@@ -553,15 +553,26 @@ def _lit_by_scene(tree: SurfelTree, light: Spot, packed: PackedScene) -> np.ndar
 # --- a range image --------------------------------------------------------------------------
 
 
-def surface_face(surface: SurfaceImage, camera_to_world: np.ndarray,
-                 keep: np.ndarray | None = None) -> FaceGrid:
+#: directions pixels are grouped by before their patches are merged (the 26 of a 3×3×3 grid)
+_NORMAL_BINS = np.array([d for d in np.ndindex(3, 3, 3) if d != (1, 1, 1)], float) - 1.0
+_NORMAL_BINS /= np.linalg.norm(_NORMAL_BINS, axis=1, keepdims=True)
+
+
+def surface_faces(surface: SurfaceImage, camera_to_world: np.ndarray,
+                  keep: np.ndarray | None = None) -> list[FaceGrid]:
     """The pixels of a (pixel-resolution) surface image as leaves, moved to the world frame.
+
+    Pixels are grouped into faces — connected regions whose normals fall in one of 26
+    direction bins — so the hierarchy merges patches of one surface, not across a crease or a
+    depth edge (such nodes could never be gathered whole).
 
     Args:
         surface: what the camera sees.
         camera_to_world: (4, 4) camera → world, mm.
         keep: (H, W) bool pixels to use (None = every pixel with a surface).
     """
+    from scipy.ndimage import find_objects, label
+
     from .transport import pixel_area_mm2
     rays = ray_directions(surface.intrinsics)
     points = rays * surface.range_mm[..., None]
@@ -571,11 +582,21 @@ def surface_face(surface: SurfaceImage, camera_to_world: np.ndarray,
     area = np.nan_to_num(pixel_area_mm2(surface))
     ok &= area > 0
     rot, t = camera_to_world[:3, :3], camera_to_world[:3, 3]
-    k = surface.intrinsics
-    # rows along v, columns along u: the grid axes of the image (pixel pitch at 300 mm)
-    pitch = 300.0 / k.fx
-    return FaceGrid(np.nan_to_num(points) @ rot.T + t, np.nan_to_num(surface.normal) @ rot.T,
-                    area, surface.albedo, ok, (pitch, pitch))
+    centre = np.nan_to_num(points) @ rot.T + t
+    normal = np.nan_to_num(surface.normal) @ rot.T
+    # the grid axes are the image's (pixel pitch at 300 mm)
+    pitch = 300.0 / surface.intrinsics.fx
+    bins = np.argmax(np.nan_to_num(surface.normal) @ _NORMAL_BINS.T, axis=-1)
+    faces = []
+    for b in np.unique(bins[ok]):
+        regions, _ = label(ok & (bins == b))
+        for index, box in enumerate(find_objects(regions), start=1):
+            if box is None:
+                continue
+            mask = regions[box] == index
+            faces.append(FaceGrid(centre[box], normal[box], area[box], surface.albedo[box],
+                                  mask, (pitch, pitch)))
+    return faces
 
 
 def depth_view(surface: SurfaceImage, camera_to_world: np.ndarray) -> tuple[np.ndarray,
@@ -589,5 +610,5 @@ def depth_view(surface: SurfaceImage, camera_to_world: np.ndarray) -> tuple[np.n
 
 
 __all__ = ["DepthViews", "FaceGrid", "Spot", "SurfelTree", "WorldModel", "build_tree",
-           "camera_spot", "cone_footprint_xy", "depth_view", "spot_profile", "surface_face",
+           "camera_spot", "cone_footprint_xy", "depth_view", "spot_profile", "surface_faces",
            "world_from_scene"]
