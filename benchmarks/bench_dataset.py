@@ -4,10 +4,11 @@ Profiles the simulated cell stage by stage on a sample of dataset scenes, *on on
 limited to one thread), with the dataset's own seeds, cell and viewpoint plans:
 
 * per capture: the supersampled ray cast of the ToF window, the ToF render with multipath (the
-  cell's path: the margin only sends light) and without it, the structured-light reference —
-  each of its 30 scans, with its compiled camera-cast + projector-visibility kernel (on code
-  before that kernel: the SL camera's ray cast and the projector visibility) — and the fusion
-  of all scans; then the whole :meth:`SimCell.capture` as the dataset calls it;
+  cell's path: the scene's world built, the crop receives) and without it, the
+  structured-light reference — each of its 30 scans, with its compiled camera-cast +
+  projector-visibility kernel (on code before that kernel: the SL camera's ray cast and the
+  projector visibility) — and the fusion of all scans; then the whole
+  :meth:`SimCell.capture` as the dataset calls it;
 * per scene: building the scene and planning its 18 viewpoints;
 * per calibration capture: :meth:`SimCell.capture_checkerboard`;
 * the parent process: writing a frame to the MCAP recording; a worker process's start-up.
@@ -94,8 +95,16 @@ def profile_capture(cell: SimCell, scene, pose: np.ndarray, view_index: int,
         scene, pose, cam.window.scaled(cam.supersample)))
     kwargs = {"receivers": cam.crop_mask} if _accepts(render_tof, "receivers") else {}
     off = cell.tof.with_effect("multipath", enabled=False)
-    timer("ToF render, multipath on", lambda: render_tof(
-        surface, cell.tof, np.random.default_rng(0), supersample=cam.supersample, **kwargs))
+
+    def multipath_on():
+        # the cell's path: the scene's world (table across the light's cone, every face)
+        if _accepts(render_tof, "world"):
+            from tof_mpd_ros.sim.tof.world import world_from_scene
+            kwargs["world"] = world_from_scene(scene, pose)
+        return render_tof(surface, cell.tof, np.random.default_rng(0),
+                          supersample=cam.supersample, **kwargs)
+
+    timer("ToF render, multipath on", multipath_on)
     timer("ToF render, multipath off", lambda: render_tof(
         surface, off, np.random.default_rng(0), supersample=cam.supersample))
     sensor, rng = cell.structured_light, np.random.default_rng(1)
