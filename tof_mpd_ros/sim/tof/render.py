@@ -124,9 +124,12 @@ def _footprint_hit(samples: SurfaceImage, s: int, mixing: bool) -> np.ndarray:
     return hit.reshape(h, s, w, s).any(axis=(1, 3))
 
 
-def _run_stage(stage: str, x: Any, config: ToFConfig, ctx: RenderContext) -> Any:
-    """Apply the enabled effects of ``stage`` in registry order."""
+def _run_stage(stage: str, x: Any, config: ToFConfig, ctx: RenderContext,
+               skip: tuple[str, ...] = ()) -> Any:
+    """Apply the enabled effects of ``stage`` in registry order (except those in ``skip``)."""
     for name in effect_names(stage):
+        if name in skip:
+            continue
         cfg = config.effects[name]
         # noise_model replaces noise: only one noise draw per frame
         if name == "noise" and config.effects["noise_model"].enabled:
@@ -166,7 +169,8 @@ _PIXEL_MIXING_AFTER_MULTIPATH = ("subsurface", "lens_scatter")
 def _render(samples: SurfaceImage, config: ToFConfig, rng: np.random.Generator,
             supersample: int, frame_index: int, motion: CameraMotion | None,
             receivers: np.ndarray | None = None,
-            world: WorldModel | None = None) -> ToFMeasurement:
+            world: WorldModel | None = None,
+            transport: np.ndarray | None = None) -> ToFMeasurement:
     s = supersample
     ctx = RenderContext(intrinsics=pixel_intrinsics(samples.intrinsics, s), surface=samples,
                         samples=samples, supersample=s, mod_freq_hz=config.mod_freq_hz,
@@ -185,8 +189,16 @@ def _render(samples: SurfaceImage, config: ToFConfig, rng: np.random.Generator,
     ctx.surface = centre_samples(samples, s)
     ctx.true_range_mm = ctx.surface.range_mm
 
-    direct = _pixel_phasors(samples, config, ctx)
-    z = _run_stage("phasor", direct, config, ctx)
+    if transport is None:
+        direct = _pixel_phasors(samples, config, ctx)
+        z = _run_stage("phasor", direct, config, ctx)
+    else:
+        # an external renderer did the light transport (footprint and multipath included)
+        direct = np.asarray(transport, dtype=np.complex128)
+        if direct.shape != ctx.intrinsics.shape:
+            raise InputError(f"transport: expected shape {ctx.intrinsics.shape}, "
+                             f"got {direct.shape}")
+        z = _run_stage("phasor", direct, config, ctx, skip=("multipath",))
     range_mm = _readout(z, config, ctx)
     amplitude = ctx.amplitude
 
@@ -209,7 +221,8 @@ def render_tof(surface: SurfaceImage, config: ToFConfig, rng: np.random.Generato
                supersample: int, frame_index: int = 0,
                motion: CameraMotion | None = None,
                receivers: np.ndarray | None = None,
-               world: WorldModel | None = None) -> ToFMeasurement:
+               world: WorldModel | None = None,
+               transport: np.ndarray | None = None) -> ToFMeasurement:
     """Simulate the ToF measurement of a ray-cast scene.
 
     Args:
@@ -229,6 +242,12 @@ def render_tof(surface: SurfaceImage, config: ToFConfig, rng: np.random.Generato
         world: every surface light travels through, with the camera's pose in it
             (:func:`.world.world_from_scene` for a simulated scene); None = infer it from
             ``surface`` (:func:`.reference_world.world_from_surface`).
+        transport: (H, W) complex128 per-pixel phasor of the whole light transport (direct and
+            indirect, integrated over each pixel's footprint) from another renderer, e.g. the
+            path tracer (:mod:`tof_mpd_ros.sim.pathtrace`), in the simulator's amplitude units;
+            the footprint and ``multipath`` stages are then skipped and the camera's own
+            modules (scatter, noise, readout, systematic errors) act on it. ``direct_phasor``
+            of the result then holds it whole.
 
     Returns:
         ToFMeasurement on the H x W = surface grid / supersample pixel grid.
@@ -239,7 +258,7 @@ def render_tof(surface: SurfaceImage, config: ToFConfig, rng: np.random.Generato
     """
     _check_inputs(surface, config, rng, supersample)
     return _render(surface, config, rng, int(supersample), frame_index, motion, receivers,
-                   world)
+                   world, transport)
 
 
 def render_from_reference(reference_range: np.ndarray, intrinsics: Intrinsics,
