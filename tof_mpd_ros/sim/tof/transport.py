@@ -412,7 +412,7 @@ def _interpolable(rx_pos: np.ndarray, rx_nrm: np.ndarray, valid: np.ndarray
 
 
 def indirect_phasor(surface: SurfaceImage, world, *, mod_freq_hz: float, light_power: float,
-                    bounces: int = 2, open_ratio: float = 3.0, bounce_patch_mm: float = 8.0,
+                    bounces: int = 3, open_ratio: float = 3.0, bounce_patch_mm: float = 8.0,
                     receivers: np.ndarray | None = None,
                     interpolate: bool = True) -> np.ndarray:
     """Indirect phasor arriving at every pixel of ``surface`` through ``bounces`` bounces.

@@ -26,10 +26,10 @@ class Multipath(Effect):
     name = "multipath"
     stage = "phasor"
     nominal = True
-    summary = "diffuse interreflection of every lit surface (two bounces), with visibility"
+    summary = "diffuse interreflection of every lit surface (three bounces), with visibility"
     params = (
         ParamSpec("gain", 1.0, 0.0, 3.0, "1", "scale of the indirect phasor (1 = physical)"),
-        ParamSpec("bounces", 2, 1, 4, "1", "diffuse bounces between light and pixel", fit=False),
+        ParamSpec("bounces", 3, 1, 4, "1", "diffuse bounces between light and pixel", fit=False),
         ParamSpec("leaf_mm", DEFAULT_LEAF_MM, 1.0, 20.0, "mm", "finest surface patch",
                   fit=False),
         ParamSpec("open_ratio", 3.0, 1.5, 20.0, "1",
