@@ -407,12 +407,22 @@ class BadInputRig:
         return int(self.lis.latest_values().get(f"dropped_{reason}", "0"))
 
     def expect_drop(self, reason: str, before: int, timeout: float = 60.0) -> dict[str, str]:
-        """The counter for ``reason`` grows, a /diagnostics message names it, the log too."""
-        n_status = len(self.lis.statuses())
+        """The counter for ``reason`` grows, a /diagnostics message names it, the log too.
+
+        The message to look at is that of the period in which the counter grew (a status
+        names the reasons dropped since the previous one), however long ago that was.
+        """
         assert self.lis.spin_until(lambda: self.counter(reason) > before, timeout), (
             self.lis.latest_values(), self.log.read_text()[-3000:])
-        assert self.lis.spin_until(
-            lambda: any(reason in s.message for s in self.lis.statuses()[n_status - 1:]), 30.0)
+
+        def named() -> bool:
+            for status in self.lis.statuses():
+                values = {kv.key: kv.value for kv in status.values}
+                if int(values.get(f"dropped_{reason}", "0")) > before:
+                    return reason in status.message
+            return False
+
+        assert self.lis.spin_until(named, 30.0), [s.message for s in self.lis.statuses()[-5:]]
         assert self.lis.spin_until(lambda: f"dropped ({reason}" in self.log.read_text(), 30.0), \
             self.log.read_text()[-3000:]
         return self.lis.latest_values()
