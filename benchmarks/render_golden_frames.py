@@ -16,6 +16,7 @@ Needs the optional extra (``pip install -e '.[pathtrace]'``) and a system LLVM l
         [--max-depth 12] [--overwrite]
     python benchmarks/render_golden_frames.py --preview /tmp/golden_preview   # views only
     python benchmarks/render_golden_frames.py --study cube_300              # convergence
+    python benchmarks/render_golden_frames.py --summary-only   # summary.json from the files
 
 ``--study`` renders one scene at increasing ``max_depth`` (same seed, so the renders differ
 only by the longer paths) and twice at the production sample count with different seeds, and
@@ -44,6 +45,7 @@ from tof_mpd_ros.sim.pathtrace import (
     ONE_BOUNCE,
     GoldenFrame,
     SpotLight,
+    interior_mask,
     load_golden,
     multipath_field,
     phasor_range_amplitude,
@@ -179,32 +181,36 @@ def _median(values: np.ndarray) -> float | None:
 
 
 def scene_figures(frame: GoldenFrame) -> dict[str, object]:
-    """Multipath figures of a golden frame (5×5-median fields of range − truth, mm).
+    """Multipath figures of a golden frame: medians of range − truth (mm) over pixels inside
+    one face (3×3 neighbourhood on the same face, so no mixed edge pixel counts).
 
     Side surfaces (normal within 10° of horizontal) by height above the table; table pixels by
-    distance from the nearest footprint, with the one-bounce / all-bounce over-shoot ratio.
+    distance from the nearest footprint, with the all-bounce / one-bounce over-shoot ratio.
     """
     surface = render_surface(frame.scene, frame.camera_to_base_mm, frame.intrinsics)
     pose = frame.camera_to_base_mm
     points = surface.points_mm() @ pose[:3, :3].T + pose[:3, 3]
     normal_z = (surface.normal @ pose[:3, :3].T)[..., 2]
-    field_all = multipath_field(frame.range_all_mm, frame.true_range_mm)
-    field_one = multipath_field(frame.range_one_bounce_mm, frame.true_range_mm)
-    field_direct = multipath_field(frame.range_direct_mm, frame.true_range_mm)
-    on_object = surface.object_id > 0
-    lit = np.isfinite(frame.range_all_mm) & np.isfinite(frame.true_range_mm)
+    inner = interior_mask(surface.object_id, surface.normal, half_px=1)
+    err_all = np.where(inner, frame.range_all_mm - frame.true_range_mm, np.nan)
+    err_one = np.where(inner, frame.range_one_bounce_mm - frame.true_range_mm, np.nan)
+    err_direct = np.where(inner, frame.range_direct_mm - frame.true_range_mm, np.nan)
     out: dict[str, object] = {
-        "lit_pixels": int(lit.sum()),
-        "direct_minus_truth_median_mm": _median(field_direct),
-        "all_minus_truth_median_mm": _median(field_all),
-        "all_minus_truth_p99_mm": round(float(np.nanpercentile(field_all, 99)), 3),
-        "all_minus_truth_max_mm": round(float(np.nanmax(field_all)), 3),
+        "interior_pixels": int(inner.sum()),
+        "direct_minus_truth_median_mm": _median(err_direct),
+        "direct_minus_truth_p99_abs_mm": round(float(np.nanpercentile(np.abs(err_direct), 99)),
+                                               3),
+        "all_minus_truth_median_mm": _median(err_all),
+        "all_minus_truth_p99_mm": round(float(np.nanpercentile(err_all, 99)), 3),
+        "all_minus_truth_max_mm": round(float(np.nanmax(err_all)), 3),
+        "one_bounce_minus_truth_median_mm": _median(err_one),
     }
-    side = on_object & (np.abs(normal_z) < math.sin(math.radians(10.0)))
+    side = (surface.object_id > 0) & (np.abs(normal_z) < math.sin(math.radians(10.0)))
     height = points[..., 2] - frame.scene.table.height_mm
-    out["side"] = [{"height_mm": list(band), "pixels": int((m := side & (height >= band[0])
+    out["side"] = [{"height_mm": list(band), "pixels": int((m := side & inner
+                                                            & (height >= band[0])
                                                             & (height <= band[1])).sum()),
-                    "all_mm": _median(field_all[m]), "one_bounce_mm": _median(field_one[m])}
+                    "all_mm": _median(err_all[m]), "one_bounce_mm": _median(err_one[m])}
                    for band in SIDE_BANDS_MM]
     table = surface.object_id == 0
     xy = points[..., :2].reshape(-1, 2)
@@ -214,8 +220,8 @@ def scene_figures(frame: GoldenFrame) -> dict[str, object]:
     dist = dist.reshape(table.shape)
     bands = []
     for lo, hi in TABLE_BANDS_MM:
-        m = table & (dist >= lo) & (dist <= hi)
-        all_mm, one_mm = _median(field_all[m]), _median(field_one[m])
+        m = table & inner & (dist >= lo) & (dist <= hi)
+        all_mm, one_mm = _median(err_all[m]), _median(err_one[m])
         bands.append({"distance_mm": [lo, hi], "pixels": int(m.sum()), "all_mm": all_mm,
                       "one_bounce_mm": one_mm,
                       "all_over_one": round(all_mm / one_mm, 2)
@@ -336,6 +342,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="only write ray-cast previews (PNG) of the scenes to this folder")
     parser.add_argument("--study", default=None, metavar="SCENE",
                         help="only run the depth / noise convergence study on one scene")
+    parser.add_argument("--summary-only", action="store_true",
+                        help="only recompute summary.json from the files in --out")
     args = parser.parse_args(argv)
 
     intrinsics = CameraModel().intrinsics
@@ -350,6 +358,13 @@ def main(argv: list[str] | None = None) -> int:
     if args.preview is not None:
         _preview(scenes, intrinsics, args.preview)
         return 0
+    if args.summary_only:
+        summary_path = args.out / "summary.json"
+        summary = {s.name: _summary_entry(args.out / f"{s.name}.npz") for s in scenes
+                   if (args.out / f"{s.name}.npz").exists()}
+        summary_path.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+        print(summary_path)
+        return 0
     if args.study is not None:
         if args.study not in known:
             parser.error(f"unknown scene {args.study!r}; known: {sorted(known)}")
@@ -359,8 +374,8 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(result, indent=2))
         return 0
 
-    command = "python benchmarks/render_golden_frames.py " + shlex.join(
-        sys.argv[1:] if argv is None else argv)
+    given = sys.argv[1:] if argv is None else argv
+    command = " ".join(["python benchmarks/render_golden_frames.py", shlex.join(given)]).strip()
     machine = cpu_model()
     lib_versions = versions()
     args.out.mkdir(parents=True, exist_ok=True)
@@ -377,16 +392,20 @@ def main(argv: list[str] | None = None) -> int:
                         seed=args.seed, command=command, machine=machine,
                         lib_versions=lib_versions)
         write_golden(path, frame, overwrite=args.overwrite)
-        written = load_golden(path)
-        summary[spec.name] = {"description": spec.description,
-                              "render_seconds": written.render_seconds,
-                              "noise": written.noise, "figures": scene_figures(written),
-                              "file_kb": round(path.stat().st_size / 1024.0, 1)}
-        summary["_machine"] = {"cpu_model": machine, "versions": lib_versions,
-                               "command": command}
+        summary[spec.name] = _summary_entry(path)
         summary_path.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
         print(json.dumps(summary[spec.name]["figures"]), flush=True)
     return 0
+
+
+def _summary_entry(path: Path) -> dict[str, object]:
+    """summary.json entry of one written golden file."""
+    frame = load_golden(path)
+    return {"description": frame.description, "command": frame.command,
+            "cpu_model": frame.cpu_model, "versions": frame.versions,
+            "spp": frame.spp, "max_depth": frame.max_depth,
+            "render_seconds": frame.render_seconds, "noise": frame.noise,
+            "figures": scene_figures(frame), "file_kb": round(path.stat().st_size / 1024.0, 1)}
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ from tof_mpd_ros.sim.pathtrace import (
     DIRECT_ONLY,
     ONE_BOUNCE,
     SpotLight,
+    interior_mask,
     load_mitsuba,
     phasor_range_amplitude,
     range_noise_mm,
@@ -55,20 +56,9 @@ CUBE = make_box_scene((150.0, 150.0, 150.0), albedo=0.5, table_albedo=0.5,
 CUBE_POSE = look_at(np.array([330.0, 0.0, 450.0]), np.array([390.0, 0.0, 40.0]))
 
 
-def _interior(surface: SurfaceImage, half: int = 2, max_turn_deg: float = 10.0) -> np.ndarray:
-    """(H, W) bool: pixels whose (2·half+1)² neighbourhood is all on the same object and face
-    (normals within ``max_turn_deg`` of the centre's: no depth edge, no crease)."""
-    h, w = surface.object_id.shape
-    ids = np.pad(surface.object_id, half, constant_values=-2)
-    normals = np.pad(np.nan_to_num(surface.normal), ((half, half), (half, half), (0, 0)))
-    cos_min = math.cos(math.radians(max_turn_deg))
-    out = surface.object_id >= 0
-    for dy in range(-half, half + 1):
-        for dx in range(-half, half + 1):
-            rows, cols = slice(half + dy, half + dy + h), slice(half + dx, half + dx + w)
-            out &= ids[rows, cols] == surface.object_id
-            out &= np.einsum("hwk,hwk->hw", normals[rows, cols], surface.normal) > cos_min
-    return out
+def _interior(surface: SurfaceImage, half: int = 2) -> np.ndarray:
+    """(H, W) bool: pixels whose (2·half+1)² neighbourhood is on the same object and face."""
+    return interior_mask(surface.object_id, surface.normal, half_px=half)
 
 
 def _every_kind() -> Scene:

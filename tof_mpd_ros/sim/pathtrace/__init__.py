@@ -5,7 +5,7 @@ Importing this package does not import mitsuba; :func:`scene_to_mitsuba` and
 :mod:`.light` are pure numpy, for tests that compare against the committed golden frames.
 """
 
-from .golden import GoldenFrame, compare_fields, load_golden, multipath_field
+from .golden import GoldenFrame, compare_fields, interior_mask, load_golden, multipath_field
 from .light import SpotLight, spot_profile
 from .render import (
     DIRECT_ONLY,
@@ -25,6 +25,7 @@ __all__ = [
     "GoldenFrame",
     "SpotLight",
     "compare_fields",
+    "interior_mask",
     "load_golden",
     "load_mitsuba",
     "multipath_field",

@@ -237,6 +237,38 @@ def multipath_field(range_mm: np.ndarray, true_range_mm: np.ndarray) -> np.ndarr
     return out
 
 
+def interior_mask(object_id: np.ndarray, normal: np.ndarray, *, half_px: int = 1,
+                  max_turn_deg: float = 10.0) -> np.ndarray:
+    """Pixels well inside one face: the (2·half_px+1)² neighbourhood is all on the same object
+    and its normals are within ``max_turn_deg`` of the centre pixel's (no depth edge, no crease;
+    a curved surface stays interior while it turns slowly).
+
+    Args:
+        object_id: (H, W) int ids (``SurfaceImage.object_id``: 0 table, k object, -1 no hit).
+        normal: (H, W, 3) float unit normals (any frame); NaN where there is no hit.
+        half_px: half side of the neighbourhood, pixels.
+        max_turn_deg: largest angle between a neighbour's normal and the centre's, degrees.
+
+    Returns:
+        (H, W) bool; False on the image border within ``half_px``.
+    """
+    ids = check_array("object_id", object_id, ndim=2, dtype_kind="iu")
+    nrm = check_array("normal", normal, ndim=3, shape=(*ids.shape, 3), dtype_kind="f")
+    h, w = ids.shape
+    pad = half_px
+    ids_p = np.pad(ids, pad, constant_values=-2)
+    nrm_c = np.nan_to_num(nrm)
+    nrm_p = np.pad(nrm_c, ((pad, pad), (pad, pad), (0, 0)))
+    cos_min = math.cos(math.radians(max_turn_deg))
+    out = ids >= 0
+    for dy in range(-pad, pad + 1):
+        for dx in range(-pad, pad + 1):
+            rows, cols = slice(pad + dy, pad + dy + h), slice(pad + dx, pad + dx + w)
+            out &= ids_p[rows, cols] == ids
+            out &= np.einsum("hwk,hwk->hw", nrm_p[rows, cols], nrm_c) > cos_min
+    return out
+
+
 @dataclass(frozen=True)
 class FieldComparison:
     """Agreement of two multipath fields over a mask.
