@@ -143,7 +143,7 @@ def test_amplitude_is_in_simulator_units(golden) -> None:
     highest = np.abs(z - frame.scene.top_height_mm()) < 0.01  # nothing above to send light
     tops = _interior(surface) & up & highest & (surface.object_id > 0)
     if tops.sum() < 20:
-        pytest.skip("no object top in view")
+        pytest.skip("the highest object top is not in view")
     rays = frame.intrinsics.ray_directions()
     cos_in = -np.einsum("hwk,hwk->hw", surface.normal, rays)
     direct = frame.light.light_power * surface.albedo * cos_in / surface.range_mm ** 2

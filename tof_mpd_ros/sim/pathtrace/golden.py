@@ -26,7 +26,7 @@ import json
 import math
 import os
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -107,7 +107,6 @@ class GoldenFrame:
     true_range_mm: np.ndarray
     range_all_noise_mm: np.ndarray
     range_one_bounce_noise_mm: np.ndarray
-    extra: dict[str, Any] = field(default_factory=dict)
 
     def meta(self) -> dict[str, Any]:
         """The JSON-ready metadata stored in the file's ``meta`` entry."""
@@ -118,7 +117,7 @@ class GoldenFrame:
             "light": self.light.as_dict(), "spp": dict(self.spp), "max_depth": dict(self.max_depth),
             "seed": int(self.seed), "versions": dict(self.versions), "command": self.command,
             "cpu_model": self.cpu_model, "render_seconds": dict(self.render_seconds),
-            "noise": dict(self.noise), **({"extra": self.extra} if self.extra else {}),
+            "noise": dict(self.noise),
         }
 
 
@@ -195,8 +194,7 @@ def load_golden(path: str | os.PathLike[str]) -> GoldenFrame:
             seed=int(meta["seed"]), versions=dict(meta["versions"]), command=str(meta["command"]),
             cpu_model=str(meta["cpu_model"]),
             render_seconds={k: float(v) for k, v in meta["render_seconds"].items()},
-            noise={k: float(v) for k, v in meta["noise"].items()},
-            extra=dict(meta.get("extra", {})), **images)
+            noise={k: float(v) for k, v in meta["noise"].items()}, **images)
     except (KeyError, TypeError, ValueError, InputError) as err:
         raise RecordingError(f"golden frame {p} has malformed metadata: {err}") from err
     for key, image in images.items():

@@ -39,6 +39,7 @@ from __future__ import annotations
 import glob
 import math
 import os
+import re
 from dataclasses import dataclass
 from types import ModuleType
 from typing import Any
@@ -59,7 +60,8 @@ VARIANT = "llvm_ad_mono"
 DIRECT_ONLY = 2
 #: ``max_depth`` for direct light plus exactly one indirect bounce
 ONE_BOUNCE = 3
-#: where drjit itself looks for the LLVM library when DRJIT_LIBLLVM_PATH is unset
+#: where to look for the LLVM library when DRJIT_LIBLLVM_PATH is unset: drjit's own search
+#: paths (Debian's multiarch folders) and versioned LLVM trees
 _LLVM_GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM*.so*", "/usr/lib/aarch64-linux-gnu/libLLVM*.so*",
                "/usr/lib/llvm-*/lib/libLLVM*.so*", "/usr/local/lib/libLLVM*.so*")
 _SENSOR_PLUGIN = "tof_pinhole"
@@ -79,13 +81,16 @@ def _find_llvm() -> str:
             raise SimulationError(f"DRJIT_LIBLLVM_PATH={given!r} is not a file: point it at an "
                                   "LLVM shared library (libLLVM*.so) or unset it")
         return given
-    found = sorted({p for pattern in _LLVM_GLOBS for p in glob.glob(pattern)})
+    found = {p for pattern in _LLVM_GLOBS for p in glob.glob(pattern) if os.path.isfile(p)}
     if not found:
         raise SimulationError("the path tracer's CPU variant needs an LLVM shared library and "
                               "none was found: install one (Debian: apt-get install libllvm19) "
                               "or set DRJIT_LIBLLVM_PATH to its path")
-    os.environ["DRJIT_LIBLLVM_PATH"] = found[-1]
-    return found[-1]
+    # the newest version: compare the numbers in the file names (libLLVM-19.so, libLLVM.so.19.1)
+    newest = max(found, key=lambda p: ([int(n) for n in re.findall(r"\d+", os.path.basename(p))],
+                                       p))
+    os.environ["DRJIT_LIBLLVM_PATH"] = newest
+    return newest
 
 
 def load_mitsuba() -> ModuleType:
