@@ -41,6 +41,7 @@ from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table, make_box_scene
 from tof_mpd_ros.sim.surface import SurfaceImage
 from tof_mpd_ros.sim.tof.phasor import direct_phasor
 from tof_mpd_ros.sim.tof.transport import indirect_phasor
+from tof_mpd_ros.sim.tof.world import world_from_scene
 
 F_MOD = 30e6
 POWER = 1e8
@@ -165,27 +166,20 @@ def test_passes_are_independent_and_average_to_the_render() -> None:
 
 
 def test_one_bounce_matches_the_simulator_transport() -> None:
-    """The simulator's one-bounce transport, given a window that holds the spot's whole cone
-    (the box face is lit mostly by the table below the image) and senders dimmed by the spot
-    profile, agrees with the path tracer's one-bounce light (max_depth 3 minus 2)."""
+    """The simulator's one-bounce transport over the scene's world (the table across the spot's
+    cone: the box face is lit mostly by the table below the image) agrees with the path
+    tracer's one-bounce light (max_depth 3 minus 2)."""
     light = SpotLight()
     direct = render_phasor(CUBE, CUBE_POSE, HALF, mod_freq_hz=F_MOD, spp=256,
                            max_depth=DIRECT_ONLY, seed=1, light=light, spp_per_pass=256)
     one = render_phasor(CUBE, CUBE_POSE, HALF, mod_freq_hz=F_MOD, spp=4096,
                         max_depth=ONE_BOUNCE, seed=1, light=light, spp_per_pass=512)
     traced = one - direct
-    half_px = math.ceil(HALF.fx * math.tan(math.radians(light.cone_half_angle_deg))) + 2
-    mx, my = half_px - HALF.width // 2, half_px - HALF.height // 2
-    window = Intrinsics(HALF.fx, HALF.fy, HALF.cx + mx, HALF.cy + my, HALF.width + 2 * mx,
-                        HALF.height + 2 * my)
-    wide = render_surface(CUBE, CUBE_POSE, window)
-    wide.albedo = wide.albedo * spot_profile(window.ray_directions()[..., 2], light)
-    receivers = np.zeros(window.shape, dtype=bool)
-    receivers[my:my + HALF.height, mx:mx + HALF.width] = True
-    simulated = indirect_phasor(wide, mod_freq_hz=F_MOD, light_power=light.light_power,
-                                block_px=1, receivers=receivers)[my:my + HALF.height,
-                                                                  mx:mx + HALF.width]
     surface = render_surface(CUBE, CUBE_POSE, HALF)
+    world = world_from_scene(CUBE, CUBE_POSE, cutoff_deg=light.cone_half_angle_deg,
+                             beam_deg=light.beam_width_deg)
+    simulated = indirect_phasor(surface, world, mod_freq_hz=F_MOD,
+                                light_power=light.light_power, bounces=1, interpolate=False)
     interior = _interior(surface, half=1) & (np.abs(simulated) > 0)
     face = interior & (surface.object_id == 1)
     assert face.sum() > 40  # the two side faces (the top receives no indirect light)

@@ -99,6 +99,7 @@ def run_predict(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..frame import ToFFrame
+    from ..sim.poses import pose_m_to_mm
     from ..sim.tof import render_from_reference
     from ..sim.tof.reference_world import ReferenceView, fusion_views
     from .frame_files import count_frames, iter_frames, write_frames
@@ -121,9 +122,10 @@ def run_predict(args: argparse.Namespace) -> int:
                                         else None)
                           for j in fusion_views(refs, poses, frame.intrinsics, index,
                                                 max_views=args.fuse_views)]
+            pose = None if frame.pose is None else pose_m_to_mm(frame.pose)
             m = render_from_reference(frame.reference_mm, frame.intrinsics, albedo, config, rng,
                                       frame_index=index, other_views=others,
-                                      camera_to_world_mm=poses[index] if others else None)
+                                      camera_to_world_mm=pose)
             yield ToFFrame(m.range_mm, m.amplitude, frame.intrinsics, config.mod_freq_hz,
                            frame.reference_mm, frame.stamp_ns, frame.pose, frame.albedo)
 

@@ -30,11 +30,13 @@ from ...errors import InputError
 from ..surface import SurfaceImage
 from .transport import shadow_test_views
 from .world import (
+    _NORMAL_BINS,
     DEFAULT_BEAM_DEG,
     DEFAULT_CUTOFF_DEG,
     DEFAULT_LEAF_MM,
     DepthViews,
     FaceGrid,
+    HeightField,
     WorldModel,
     build_tree,
     camera_spot,
@@ -82,14 +84,20 @@ def _tolerance(points: np.ndarray) -> np.ndarray:
     return 2.0 + 0.005 * np.linalg.norm(points, axis=-1)
 
 
-def fit_support_plane(points_mm: np.ndarray, *, iterations: int = 256,
-                      seed: int = 0) -> Plane | None:
+def fit_support_plane(points_mm: np.ndarray, *, iterations: int = 256, seed: int = 0,
+                      up: np.ndarray | None = None, max_tilt_deg: float = 25.0) -> Plane | None:
     """The plane the scene stands on: many inliers and (almost) nothing behind it.
+
+    Without ``up`` a wall that fills more of the image than the table can win; with the
+    camera's pose the robot knows which way is up, and only planes within ``max_tilt_deg`` of
+    horizontal are candidates.
 
     Args:
         points_mm: (N, 3) float64 visible points, camera frame, mm (NaN rows ignored).
         iterations: RANSAC hypotheses.
         seed: sampling seed (the fit is deterministic).
+        up: (3,) unit vector pointing up (against gravity) in the camera frame, or None.
+        max_tilt_deg: largest angle between a candidate's normal and ``up``.
 
     Returns:
         The plane, or None when no plane holds ``MIN_PLANE_FRACTION`` of the points.
@@ -115,6 +123,11 @@ def fit_support_plane(points_mm: np.ndarray, *, iterations: int = 256,
     behind = signed < -tol[:, None]
     # a support plane has the scene in front of it: points behind it count against it
     score = inliers.sum(axis=0) - 4 * behind.sum(axis=0)
+    if up is not None:
+        score = np.where(n @ np.asarray(up, float) >= np.cos(np.radians(max_tilt_deg)), score,
+                         -np.inf)
+        if not np.isfinite(score).any():
+            return None
     best = int(np.argmax(score))
     if inliers[:, best].mean() < MIN_PLANE_FRACTION:
         return None
@@ -171,6 +184,101 @@ def _plane_face(plane: Plane, albedo: float, leaf_mm: float, cutoff_deg: float) 
                     ((hi[0] - lo[0]) / nu, (hi[1] - lo[1]) / nv))
 
 
+def _plane_axes(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit axes spanning the plane with normal ``n``."""
+    e1 = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(n, e1)
+
+
+def extruded_objects(world_plane: np.ndarray, points: np.ndarray, albedo: np.ndarray,
+                     views: list, cell_mm: float, leaf_mm: float
+                     ) -> tuple[HeightField | None, list[FaceGrid]]:
+    """Objects standing on the support plane, extruded down to it: a height field for
+    visibility, and leaves for their walls that no view sees (the far sides of objects).
+
+    Every off-plane point becomes a column down to the plane; the columns' outline gets walls
+    facing outwards (normals from the smoothed outline), cut into ``leaf_mm`` patches; walls
+    that a view sees at their place are left out (the view's pixels are those surfaces).
+
+    Args:
+        world_plane: (4,) (n, d) of the plane, n·p = d, n towards the free side (world frame).
+        points: (M, 3) off-plane surface points, world frame, mm.
+        albedo: (M,) their albedo (the walls take the median).
+        views: (world → camera (3, 4), fx fy cx cy (4,), range (H, W)) of every view.
+        cell_mm: height-field cell, mm.
+        leaf_mm: wall patch height, mm.
+
+    Returns:
+        The height field (None without off-plane points) and the walls' faces.
+    """
+    from scipy.ndimage import gaussian_filter, grey_closing, grey_erosion
+
+    n, d = world_plane[:3], float(world_plane[3])
+    up = points @ n - d
+    above = up > 1.5
+    if above.sum() < 20:
+        return None, []
+    p, up = points[above], up[above]
+    e1, e2 = _plane_axes(n)
+    foot = n * d
+    uv = np.stack([(p - foot) @ e1, (p - foot) @ e2], axis=1)
+    lo = uv.min(axis=0) - 2 * cell_mm
+    shape = tuple(np.ceil((uv.max(axis=0) + 2 * cell_mm - lo) / cell_mm).astype(int))
+    ij = np.floor((uv - lo) / cell_mm).astype(int)
+    heights = np.zeros(shape)
+    np.maximum.at(heights, (ij[:, 0], ij[:, 1]), up)
+    heights = grey_closing(heights, size=3)
+    origin = foot + lo[0] * e1 + lo[1] * e2
+    # occupancy one cell inside the outline: a cell on it is partly free space, and a ray
+    # grazing a visible face must not be cut by the cell the face runs through
+    field = HeightField(origin, e1, e2, n.copy(), float(cell_mm), grey_erosion(heights, size=3))
+    # the outline: occupied cells next to a free one; outward = down the smoothed occupancy
+    inside = heights > 0
+    pad = np.pad(inside, 1)
+    edge = inside & ~(pad[:-2, 1:-1] & pad[2:, 1:-1] & pad[1:-1, :-2] & pad[1:-1, 2:])
+    gu, gv = np.gradient(gaussian_filter(inside.astype(float), 1.0))
+    ci, cj = np.nonzero(edge & (np.hypot(gu, gv) > 1e-6))
+    if ci.size == 0:
+        return field, []
+    out_uv = -np.stack([gu[ci, cj], gv[ci, cj]], axis=1)
+    out_uv /= np.linalg.norm(out_uv, axis=1, keepdims=True)
+    normal = out_uv[:, :1] * e1 + out_uv[:, 1:] * e2
+    base = origin + ((ci + 0.5)[:, None] * e1 + (cj + 0.5)[:, None] * e2) * cell_mm \
+        + 0.5 * cell_mm * normal
+    h = heights[ci, cj]
+    k = np.maximum(1, np.ceil(h / leaf_mm)).astype(int)
+    k_max = int(k.max())
+    levels = (np.arange(k_max) + 0.5)[None, :] / k[:, None]             # (C, K) in (0, 1)
+    valid = np.arange(k_max)[None, :] < k[:, None]
+    centre = base[:, None, :] + (levels * h[:, None])[..., None] * n
+    width = cell_mm / np.abs(out_uv).sum(axis=1)  # outline length a boundary cell stands for
+    area = np.broadcast_to((width * h / k)[:, None], valid.shape).copy()
+    hidden = valid.copy()
+    for w2c, kin, depth in views:
+        c = centre @ w2c[:, :3].T + w2c[:, 3]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.rint(kin[0] * c[..., 0] / c[..., 2] + kin[2])
+            v = np.rint(kin[1] * c[..., 1] / c[..., 2] + kin[3])
+        hh, ww = depth.shape
+        inside_img = (c[..., 2] > 0) & (u >= 0) & (v >= 0) & (u < ww) & (v < hh)
+        r = depth[np.where(inside_img, v, 0).astype(int), np.where(inside_img, u, 0).astype(int)]
+        seen = inside_img & np.isfinite(r) & (np.linalg.norm(c, axis=-1) <= r + 3.0 + 0.03 * r)
+        hidden &= ~seen
+    rho = float(np.median(albedo[above]))
+    faces = []
+    bins = np.argmax(normal @ _NORMAL_BINS.T, axis=1)
+    tangent = np.cross(n, normal)
+    for b in np.unique(bins):
+        sel = np.flatnonzero(bins == b)
+        sel = sel[np.argsort((base[sel] - origin) @ tangent[sel[0]])]
+        faces.append(FaceGrid(centre[sel], np.broadcast_to(normal[sel][:, None, :],
+                                                             centre[sel].shape).copy(),
+                              area[sel], np.full(valid[sel].shape, rho),
+                              valid[sel] & hidden[sel], (cell_mm, leaf_mm)))
+    return field, faces
+
+
 def plane_pixels(surface: SurfaceImage, plane: Plane, max_tilt_deg: float = 25.0) -> np.ndarray:
     """(H, W) bool pixels lying on ``plane`` (within tolerance) and facing like it."""
     points = surface.points_mm()
@@ -183,7 +291,8 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
                        cutoff_deg: float = DEFAULT_CUTOFF_DEG,
                        beam_deg: float = DEFAULT_BEAM_DEG, extend_plane: bool = True,
                        others: tuple[tuple[SurfaceImage, np.ndarray], ...] = (),
-                       camera_to_world: np.ndarray | None = None) -> WorldModel:
+                       camera_to_world: np.ndarray | None = None,
+                       world_up: np.ndarray | None = None, extrude: bool = True) -> WorldModel:
     """The world seen in a range image (plus, optionally, other views of the same scene).
 
     The support plane, when one is found, replaces its pixels by an exact plane across the
@@ -197,6 +306,11 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
         extend_plane: fit the support plane and extend it across the cone.
         others: other views as (surface, camera_to_world (4, 4) mm) in the same world frame.
         camera_to_world: (4, 4) pose of the target view (None = identity: world = camera).
+        world_up: (3,) the world's up direction (the robot base's +z), or None: with it the
+            support plane must be about horizontal (a large wall cannot be taken for it).
+        extrude: with a support plane, extrude the off-plane surfaces down to it (walls for
+            the faces no view sees, and a height field for visibility); False = the views'
+            surfaces only, visibility by carving.
 
     Returns:
         WorldModel with depth-map visibility (space carving over all views).
@@ -210,7 +324,9 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
         if other.intrinsics.shape != surface.intrinsics.shape:
             raise InputError("other views must have the target's image size")
         views.append(depth_view(other, np.asarray(other_pose, np.float64)))
-    plane = fit_support_plane(surface.points_mm().reshape(-1, 3)) if extend_plane else None
+    up = None if world_up is None else pose[:3, :3].T @ np.asarray(world_up, np.float64)
+    plane = fit_support_plane(surface.points_mm().reshape(-1, 3), up=up) if extend_plane \
+        else None
     on_plane = None if plane is None else plane_pixels(surface, plane)
     if on_plane is not None and not on_plane.any():
         plane = on_plane = None
@@ -218,12 +334,23 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
     if plane is not None:
         n_w = pose[:3, :3] @ plane.normal
         world_plane = np.r_[n_w, plane.offset_mm + n_w @ pose[:3, 3]]
-    faces = surface_faces(surface, pose, None if on_plane is None else ~on_plane)
+    keep = surface.valid if on_plane is None else surface.valid & ~on_plane
+    faces = surface_faces(surface, pose, keep)
+    objects = [(surface.points_mm()[keep] @ pose[:3, :3].T + pose[:3, 3],
+                surface.albedo[keep])]
     for j, (other, other_pose) in enumerate(others):
         # what neither the target nor an earlier view has, and not the plane (exact below)
         other_pose = np.asarray(other_pose, np.float64)
-        faces += surface_faces(other, other_pose,
-                               _unseen_pixels(other, other_pose, views[:j + 1], world_plane))
+        unseen = _unseen_pixels(other, other_pose, views[:j + 1], world_plane)
+        faces += surface_faces(other, other_pose, unseen)
+        objects.append((other.points_mm()[unseen] @ other_pose[:3, :3].T + other_pose[:3, 3],
+                        other.albedo[unseen]))
+    field = None
+    if plane is not None and extrude:
+        field, walls = extruded_objects(world_plane, np.concatenate([o[0] for o in objects]),
+                                        np.concatenate([o[1] for o in objects]), views,
+                                        cell_mm=leaf_mm / 2.0, leaf_mm=leaf_mm)
+        faces += walls
     if plane is not None:
         rho = float(np.median(surface.albedo[on_plane]))
         faces.append(_moved(_plane_face(plane, rho, leaf_mm, cutoff_deg), pose))
@@ -235,9 +362,9 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
                     np.stack([v[2] for v in views]))
     light = camera_spot(pose, cutoff_deg, beam_deg)
     lit = shadow_test_views(tree.centre[:tree.n_leaves], tree.normal[:tree.n_leaves],
-                            light.position, dv)
+                            light.position, dv, field)
     return WorldModel(tree, light, pose, views=dv, lit=lit, notes=notes,
-                      support_plane=world_plane)
+                      support_plane=world_plane, height_field=field)
 
 
 def _moved(face: FaceGrid, pose: np.ndarray) -> FaceGrid:

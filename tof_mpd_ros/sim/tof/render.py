@@ -286,7 +286,8 @@ def render_from_reference(reference_range: np.ndarray, intrinsics: Intrinsics,
         frame_index: index of the frame in its sequence (temperature drift).
         motion: camera velocity during the frame (time offset), None = at rest.
         material_id: (H, W) int material index (subsurface), None = material 0.
-        camera_to_world_mm: (4, 4) pose of this view (mm), needed with ``other_views``.
+        camera_to_world_mm: (4, 4) pose of this view in the robot's base frame (mm, +z up),
+            needed with ``other_views``; with it the support plane must be about horizontal.
         other_views: other references of the same scene with their poses (same intrinsics).
 
     Returns:
@@ -300,16 +301,19 @@ def render_from_reference(reference_range: np.ndarray, intrinsics: Intrinsics,
     surface = surface_from_reference(reference_range, intrinsics, albedo, material_id)
     _check_inputs(surface, config, rng, 1)
     world = None
-    if other_views and config.effects["multipath"].enabled and surface.valid.any():
-        if camera_to_world_mm is None:
-            raise InputError("other_views need this view's camera_to_world_mm")
+    if other_views and camera_to_world_mm is None:
+        raise InputError("other_views need this view's camera_to_world_mm")
+    if camera_to_world_mm is not None and config.effects["multipath"].enabled and \
+            surface.valid.any():
         p = config.params("multipath")
         others = tuple((surface_from_reference(v.reference_mm, intrinsics, v.albedo),
                         np.asarray(v.camera_to_world_mm, np.float64)) for v in other_views)
+        # the world is the robot's base frame: +z is up
         world = world_from_surface(surface, leaf_mm=float(p["leaf_mm"]),
                                    cutoff_deg=float(p["cutoff_deg"]),
                                    beam_deg=float(p["beam_deg"]), others=others,
-                                   camera_to_world=camera_to_world_mm)
+                                   camera_to_world=camera_to_world_mm,
+                                   world_up=np.array([0.0, 0.0, 1.0]))
     return _render(surface, config, rng, 1, frame_index, motion, world=world)
 
 

@@ -93,10 +93,28 @@ def _occupied(px, py, pz, w2c, kin, depth, eps_mm, eps_rel):  # pragma: no cover
 
 
 @nb.njit(cache=True, inline="always")
+def _in_height_field(px, py, pz, hf, hf_h, eps_mm):  # pragma: no cover - compiled
+    """Below the support plane, or inside an object extruded down to it (see
+    :class:`~.world.HeightField`: ``hf`` = origin, e1, e2, n (3 each), cell size)."""
+    rx = px - hf[0]
+    ry = py - hf[1]
+    rz = pz - hf[2]
+    up = hf[9] * rx + hf[10] * ry + hf[11] * rz
+    if up < -eps_mm:
+        return True
+    i = math.floor((hf[3] * rx + hf[4] * ry + hf[5] * rz) / hf[12])
+    j = math.floor((hf[6] * rx + hf[7] * ry + hf[8] * rz) / hf[12])
+    if i < 0 or j < 0 or i >= hf_h.shape[0] or j >= hf_h.shape[1]:
+        return False
+    return up < hf_h[i, j] - eps_mm
+
+
+@nb.njit(cache=True, inline="always")
 def _blocked(ox, oy, oz, qx, qy, qz, end_margin, mode, table, kind, geom, height, planes,
-             n_planes, w2c, kin, depth, eps_mm, eps_rel, step_mm, max_steps,
-             skip_mm):  # pragma: no cover - compiled
-    """Whether the segment o→q is blocked (mode 0: analytic scene, 1: depth views)."""
+             n_planes, w2c, kin, depth, eps_mm, eps_rel, step_mm, max_steps, skip_mm, hf,
+             hf_h):  # pragma: no cover - compiled
+    """Whether the segment o→q is blocked (mode 0: analytic scene, 1: depth views by space
+    carving, 2: the height field of objects standing on a support plane)."""
     if mode == 0:
         return segment_blocked(ox, oy, oz, qx, qy, qz, 0.0, end_margin, table, kind, geom,
                                height, planes, n_planes)
@@ -112,15 +130,19 @@ def _blocked(ox, oy, oz, qx, qy, qz, end_margin, mode, table, kind, geom, height
         tl = t * length
         if tl < lo or tl > hi:
             continue
-        if _occupied(ox + t * dx, oy + t * dy, oz + t * dz, w2c, kin, depth, eps_mm, eps_rel):
+        if mode == 2:
+            if _in_height_field(ox + t * dx, oy + t * dy, oz + t * dz, hf, hf_h, 1.0):
+                return True
+        elif _occupied(ox + t * dx, oy + t * dy, oz + t * dz, w2c, kin, depth, eps_mm,
+                       eps_rel):
             return True
     return False
 
 
 @nb.njit(parallel=True, cache=True)
 def _lit_kernel(points, normals, light, mode, table, kind, geom, height, planes, n_planes, w2c,
-                kin, depth, eps_mm, eps_rel, step_mm, max_steps,
-                skip_mm):  # pragma: no cover - compiled
+                kin, depth, eps_mm, eps_rel, step_mm, max_steps, skip_mm, hf,
+                hf_h):  # pragma: no cover - compiled
     n = points.shape[0]
     out = np.zeros(n, dtype=np.bool_)
     for i in nb.prange(n):
@@ -129,20 +151,21 @@ def _lit_kernel(points, normals, light, mode, table, kind, geom, height, planes,
         pz = points[i, 2] + SURFACE_OFFSET_MM * normals[i, 2]
         out[i] = not _blocked(light[0], light[1], light[2], px, py, pz, 0.0, mode, table,
                               kind, geom, height, planes, n_planes, w2c, kin, depth, eps_mm,
-                              eps_rel, step_mm, max_steps, skip_mm)
+                              eps_rel, step_mm, max_steps, skip_mm, hf, hf_h)
     return out
 
 
-def _vis_args(scene: PackedScene | None, views) -> tuple:
+def _vis_args(scene: PackedScene | None, views, height_field=None) -> tuple:
     """The occluder as the compiled kernels' positional arguments (mode first)."""
+    no_hf = (np.zeros(13), np.zeros((1, 1)))
     if scene is not None:
         return (0, scene.table, scene.kind, scene.geom, scene.height, scene.planes,
                 scene.n_planes, np.zeros((0, 3, 4)), np.zeros((0, 4)), np.zeros((0, 1, 1)),
-                2.0, 0.01, 4.0, 0, 3.0)
-    empty = pack_empty()
-    return (1, *empty, views.world_to_camera, views.intrinsics, views.range_mm,
-            float(views.eps_mm), float(views.eps_rel), float(views.step_mm),
-            int(views.max_steps), float(views.skip_mm))
+                2.0, 0.01, 4.0, 0, 3.0, *no_hf)
+    hf = no_hf if height_field is None else (height_field.frame(), height_field.height_mm)
+    return (1 if height_field is None else 2, *pack_empty(), views.world_to_camera,
+            views.intrinsics, views.range_mm, float(views.eps_mm), float(views.eps_rel),
+            float(views.step_mm), int(views.max_steps), float(views.skip_mm), *hf)
 
 
 def pack_empty() -> tuple:
@@ -159,10 +182,11 @@ def shadow_test_scene(points: np.ndarray, normals: np.ndarray, light_mm: np.ndar
 
 
 def shadow_test_views(points: np.ndarray, normals: np.ndarray, light_mm: np.ndarray,
-                      views) -> np.ndarray:
-    """(N,) bool: the points see the light, by space carving on ``views`` (a DepthViews)."""
-    args = list(_vis_args(None, views))
-    args[-2] = max(int(args[-2]), 64)  # a shadow ray is long: test it densely
+                      views, height_field=None) -> np.ndarray:
+    """(N,) bool: the points see the light, by space carving on ``views`` (a DepthViews) or,
+    when given, in a :class:`~.world.HeightField`."""
+    args = list(_vis_args(None, views, height_field))
+    args[-4] = max(int(args[-4]), 64)  # a shadow ray is long: test it densely
     return _lit_kernel(points, normals, np.asarray(light_mm, np.float64), *args)
 
 
@@ -183,7 +207,7 @@ def _sum_up(w_re, w_im, w_abs, child, n_leaves):  # pragma: no cover - compiled
 def _gather(rx_pos, rx_nrm, centre, normal, area, radius, spread, thickness, child, roots,
             w_re, w_im, w_abs, open2, max_spread, k_path, min_cos, mode, table, kind, geom,
             height, planes, n_planes, w2c, kin, depth, eps_mm, eps_rel, step_mm, max_steps,
-            skip_mm):  # pragma: no cover - compiled
+            skip_mm, hf, hf_h):  # pragma: no cover - compiled
     """Irradiance phasor at each receiver point from the tree's emission (see module doc)."""
     n = rx_pos.shape[0]
     out_re = np.zeros(n)
@@ -242,7 +266,7 @@ def _gather(rx_pos, rx_nrm, centre, normal, area, radius, spread, thickness, chi
             if _blocked(o0, o1, o2, centre[s, 0], centre[s, 1], centre[s, 2],
                         thickness[s] + SURFACE_OFFSET_MM, mode, table, kind, geom, height,
                         planes, n_planes, w2c, kin, depth, eps_mm, eps_rel, step_mm,
-                        max_steps, skip_mm):
+                        max_steps, skip_mm, hf, hf_h):
                 continue
             g = cos_x * nd / (dd * (dd + area[s] * inv_pi))
             ph = k_path * dist
@@ -323,7 +347,7 @@ def bounce_emissions(world, *, mod_freq_hz: float, light_power: float, bounces: 
     """Leaf emission of each bounce, W_1 .. W_B (each (n_leaves,) complex128, amplitude·mm²)."""
     tree = world.tree
     k_path = 2.0 * math.pi * mod_freq_hz / SPEED_OF_LIGHT_MM_S
-    vis = _vis_args(world.scene, world.views)
+    vis = _vis_args(world.scene, world.views, world.height_field)
     out = [first_bounce_emission(world, mod_freq_hz, light_power)]
     if bounces < 2:
         return out
@@ -455,7 +479,7 @@ def indirect_phasor(surface: SurfaceImage, world, *, mod_freq_hz: float, light_p
         rx_pos[valid], rx_nrm[valid] = _snap_to_plane(rx_pos[valid], rx_nrm[valid],
                                                       world.support_plane)
     k_path = 2.0 * math.pi * mod_freq_hz / SPEED_OF_LIGHT_MM_S
-    vis = _vis_args(world.scene, world.views)
+    vis = _vis_args(world.scene, world.views, world.height_field)
     irradiance = np.zeros((h, w), dtype=np.complex128)
     todo = valid
     if interpolate:

@@ -286,6 +286,33 @@ class DepthViews:
 
 
 @dataclass(frozen=True)
+class HeightField:
+    """Objects standing on a support plane, as columns: what is inside them is occupied.
+
+    The plane has origin ``origin`` and unit axes ``e1``, ``e2`` in it and ``normal`` out of it
+    (towards the free side); cell (i, j) covers [i, i + 1) × [j, j + 1) × ``cell_mm`` along
+    (e1, e2). A point is occupied when it lies below the plane or below the cell's height.
+
+    Attributes:
+        origin, e1, e2, normal: (3,) float64 world frame, mm / unit vectors.
+        cell_mm: cell size, mm.
+        height_mm: (Nu, Nv) float64 column heights above the plane, mm (0 = nothing there).
+    """
+
+    origin: np.ndarray
+    e1: np.ndarray
+    e2: np.ndarray
+    normal: np.ndarray
+    cell_mm: float
+    height_mm: np.ndarray
+
+    def frame(self) -> np.ndarray:
+        """(13,) float64 origin, e1, e2, normal, cell size: the compiled kernels' layout."""
+        return np.concatenate([self.origin, self.e1, self.e2, self.normal,
+                               [self.cell_mm]]).astype(np.float64)
+
+
+@dataclass(frozen=True)
 class WorldModel:
     """Everything light transport needs besides the receiving pixels.
 
@@ -301,6 +328,8 @@ class WorldModel:
         support_plane: (4,) float64 (n, d) with n·p = d (world frame, mm) of an inferred
             support plane whose leaves are exact, or None; receiving pixels on it are snapped
             onto it so the plane does not light itself through their noise.
+        height_field: objects extruded down to the support plane, used for visibility instead
+            of carving the views (range-image worlds with a plane), or None.
     """
 
     tree: SurfelTree
@@ -311,6 +340,7 @@ class WorldModel:
     lit: np.ndarray | None = None
     notes: dict = field(default_factory=dict)
     support_plane: np.ndarray | None = None
+    height_field: HeightField | None = None
 
     def moved_camera(self, camera_to_world: np.ndarray) -> WorldModel:
         """The same world with the receiving camera at another pose (a pose error's true
@@ -609,6 +639,7 @@ def depth_view(surface: SurfaceImage, camera_to_world: np.ndarray) -> tuple[np.n
     return inv[:3], np.array([k.fx, k.fy, k.cx, k.cy]), depth
 
 
-__all__ = ["DepthViews", "FaceGrid", "Spot", "SurfelTree", "WorldModel", "build_tree",
-           "camera_spot", "cone_footprint_xy", "depth_view", "spot_profile", "surface_faces",
+__all__ = ["DepthViews", "FaceGrid", "HeightField", "Spot", "SurfelTree", "WorldModel",
+           "build_tree", "camera_spot", "cone_footprint_xy", "depth_view", "spot_profile",
+           "surface_faces",
            "world_from_scene"]
