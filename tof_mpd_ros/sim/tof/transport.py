@@ -226,11 +226,15 @@ def _gather(rx_pos, rx_nrm, centre, normal, area, radius, spread, thickness, chi
         o2 = x2 + SURFACE_OFFSET_MM * n2
         acc_re = 0.0
         acc_im = 0.0
+        # one root at a time: the stack then holds at most the tree's depth (a world can have
+        # hundreds of faces, each a root)
         top = 0
-        for r in range(roots.shape[0]):
-            stack[top] = roots[r]
-            top += 1
-        while top > 0:
+        r = 0
+        while top > 0 or r < roots.shape[0]:
+            if top == 0:
+                stack[0] = roots[r]
+                top = 1
+                r += 1
             top -= 1
             s = stack[top]
             if w_abs[s] <= 0.0:
@@ -462,9 +466,10 @@ def indirect_phasor(surface: SurfaceImage, world, *, mod_freq_hz: float, light_p
     """
     h, w = surface.intrinsics.shape
     out = np.zeros((h, w), dtype=np.complex128)
-    valid = surface.valid & np.all(np.isfinite(surface.normal), axis=-1)
-    if receivers is not None:
-        valid &= np.asarray(receivers, dtype=bool)
+    # every pixel with a surface places the anchors, so a receiver's value does not depend on
+    # which other pixels are receivers
+    surfaced = surface.valid & np.all(np.isfinite(surface.normal), axis=-1)
+    valid = surfaced if receivers is None else surfaced & np.asarray(receivers, dtype=bool)
     if not valid.any() or bounces < 1:
         return out
     emissions = bounce_emissions(world, mod_freq_hz=mod_freq_hz, light_power=light_power,
@@ -473,22 +478,30 @@ def indirect_phasor(surface: SurfaceImage, world, *, mod_freq_hz: float, light_p
     total = np.sum(emissions, axis=0)
     pose = world.camera_to_world
     points = ray_directions(surface.intrinsics) * surface.range_mm[..., None]
-    rx_pos = np.where(valid[..., None], points @ pose[:3, :3].T + pose[:3, 3], np.nan)
-    rx_nrm = np.where(valid[..., None], surface.normal @ pose[:3, :3].T, np.nan)
+    rx_pos = np.where(surfaced[..., None], points @ pose[:3, :3].T + pose[:3, 3], np.nan)
+    rx_nrm = np.where(surfaced[..., None], surface.normal @ pose[:3, :3].T, np.nan)
     if world.support_plane is not None:
-        rx_pos[valid], rx_nrm[valid] = _snap_to_plane(rx_pos[valid], rx_nrm[valid],
-                                                      world.support_plane)
+        rx_pos[surfaced], rx_nrm[surfaced] = _snap_to_plane(rx_pos[surfaced],
+                                                            rx_nrm[surfaced],
+                                                            world.support_plane)
     k_path = 2.0 * math.pi * mod_freq_hz / SPEED_OF_LIGHT_MM_S
     vis = _vis_args(world.scene, world.views, world.height_field)
     irradiance = np.zeros((h, w), dtype=np.complex128)
     todo = valid
     if interpolate:
-        anchors, groups = _interpolable(rx_pos, rx_nrm, valid)
-        irradiance[anchors] = _gather_tree(rx_pos[anchors], rx_nrm[anchors], world.tree, total,
-                                           k_path, open_ratio, vis)
+        anchors, groups = _interpolable(rx_pos, rx_nrm, surfaced)
+        # the anchors the receivers use: themselves and their 8 neighbours'
+        near_rx = np.zeros((h + 2, w + 2), dtype=bool)
+        for dv in range(3):
+            for du in range(3):
+                near_rx[dv:dv + h, du:du + w] |= valid
+        used = anchors & near_rx[1:h + 1, 1:w + 1]
+        irradiance[used] = _gather_tree(rx_pos[used], rx_nrm[used], world.tree, total, k_path,
+                                        open_ratio, vis)
         todo = valid & ~anchors
         v, u = np.mgrid[0:h, 0:w]
         for offsets, ok in groups:
+            ok = ok & valid
             vv, uu = v[ok], u[ok]
             near = np.array([irradiance[vv + dv, uu + du] for dv, du in offsets])
             mag = np.abs(near)
