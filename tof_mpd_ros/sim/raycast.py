@@ -373,6 +373,28 @@ def _kernel_sphere(radius, radius2, ox, oy, oz, dx, dy, dz):  # pragma: no cover
 
 
 @nb.njit(cache=True, inline="always")
+def _object_hit(k, kind, g, height, planes, n_planes, ox, oy, oz, dx, dy,
+                dz):  # pragma: no cover - compiled
+    """Entry t of object k along a base-frame ray (inf = miss) and its object-frame normal:
+    the ray is moved into the object's frame (yaw only) and the object's kernel runs."""
+    c = g[3]
+    s = g[4]
+    x = ox - g[0]
+    y = oy - g[1]
+    lox = c * x + s * y
+    loy = c * y - s * x
+    loz = oz - g[2]
+    ldx = c * dx + s * dy
+    ldy = c * dy - s * dx
+    if kind[k] == 0:
+        tk, kp = _kernel_polyhedron(planes[k], n_planes[k], lox, loy, loz, ldx, ldy, dz)
+        return tk, planes[k, kp, 0], planes[k, kp, 1], planes[k, kp, 2]
+    if kind[k] == 1:
+        return _kernel_cylinder(g[9], g[10], height[k], lox, loy, loz, ldx, ldy, dz)
+    return _kernel_sphere(g[9], g[10], lox, loy, loz, ldx, ldy, dz)
+
+
+@nb.njit(cache=True, inline="always")
 def _nearest_hit(ox, oy, oz, dx, dy, dz, table, kind, geom, height, planes,
                  n_planes):  # pragma: no cover - compiled
     """Nearest hit of one ray: (t (inf = miss), base-frame normal (NaN on a miss), hit index
@@ -403,23 +425,8 @@ def _nearest_hit(ox, oy, oz, dx, dy, dz, table, kind, geom, height, planes,
             continue
         c = g[3]
         s = g[4]
-        x = ox - g[0]
-        y = oy - g[1]
-        lox = c * x + s * y
-        loy = c * y - s * x
-        loz = oz - g[2]
-        ldx = c * dx + s * dy
-        ldy = c * dy - s * dx
-        if kind[k] == 0:
-            tk, kp = _kernel_polyhedron(planes[k], n_planes[k], lox, loy, loz, ldx, ldy, dz)
-            nx = planes[k, kp, 0]
-            ny = planes[k, kp, 1]
-            nz = planes[k, kp, 2]
-        elif kind[k] == 1:
-            tk, nx, ny, nz = _kernel_cylinder(g[9], g[10], height[k], lox, loy, loz, ldx, ldy,
-                                              dz)
-        else:
-            tk, nx, ny, nz = _kernel_sphere(g[9], g[10], lox, loy, loz, ldx, ldy, dz)
+        tk, nx, ny, nz = _object_hit(k, kind, g, height, planes, n_planes, ox, oy, oz, dx, dy,
+                                     dz)
         if tk < best:
             best = tk
             nx_b = c * nx - s * ny
@@ -465,21 +472,7 @@ def segment_blocked(ox, oy, oz, qx, qy, qz, t_lo, t_hi_margin, table, kind, geom
         dist2 = cx * cx + cy * cy + cz * cz - along * along
         if not (dist2 <= g[8] and along + g[11] > t_lo and along - g[11] < t_hi):
             continue
-        c = g[3]
-        s = g[4]
-        x = ox - g[0]
-        y = oy - g[1]
-        lox = c * x + s * y
-        loy = c * y - s * x
-        loz = oz - g[2]
-        ldx = c * dx + s * dy
-        ldy = c * dy - s * dx
-        if kind[k] == 0:
-            tk = _kernel_polyhedron(planes[k], n_planes[k], lox, loy, loz, ldx, ldy, dz)[0]
-        elif kind[k] == 1:
-            tk = _kernel_cylinder(g[9], g[10], height[k], lox, loy, loz, ldx, ldy, dz)[0]
-        else:
-            tk = _kernel_sphere(g[9], g[10], lox, loy, loz, ldx, ldy, dz)[0]
+        tk = _object_hit(k, kind, g, height, planes, n_planes, ox, oy, oz, dx, dy, dz)[0]
         if tk > t_lo and tk < t_hi:
             return True
     return False

@@ -184,6 +184,30 @@ def _plane_face(plane: Plane, albedo: float, leaf_mm: float, cutoff_deg: float) 
                     ((hi[0] - lo[0]) / nu, (hi[1] - lo[1]) / nv))
 
 
+def view_lookup(points: np.ndarray, world_to_camera: np.ndarray, kin: np.ndarray,
+                range_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where world points fall in a view: their own range, and the view's range there.
+
+    Args:
+        points: (..., 3) float64 world points, mm.
+        world_to_camera: (3, 4) float64 world → camera, mm.
+        kin: (4,) fx, fy, cx, cy of the view (px).
+        range_mm: (H, W) the view's radial range (NaN or inf = missing).
+
+    Returns:
+        (...) float64 the points' range from the view's camera, mm; (...) float64 the view's
+        range at the nearest pixel, NaN where the point is behind the camera or off the image.
+    """
+    c = points @ world_to_camera[:, :3].T + world_to_camera[:, 3]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.rint(kin[0] * c[..., 0] / c[..., 2] + kin[2])
+        v = np.rint(kin[1] * c[..., 1] / c[..., 2] + kin[3])
+    h, w = range_mm.shape
+    inside = (c[..., 2] > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
+    there = range_mm[np.where(inside, v, 0).astype(int), np.where(inside, u, 0).astype(int)]
+    return np.linalg.norm(c, axis=-1), np.where(inside, there, np.nan)
+
+
 def _plane_axes(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit axes spanning the plane with normal ``n``."""
     e1 = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
@@ -256,15 +280,10 @@ def extruded_objects(world_plane: np.ndarray, points: np.ndarray, albedo: np.nda
     area = np.broadcast_to((width * h / k)[:, None], valid.shape).copy()
     hidden = valid.copy()
     for w2c, kin, depth in views:
-        c = centre @ w2c[:, :3].T + w2c[:, 3]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.rint(kin[0] * c[..., 0] / c[..., 2] + kin[2])
-            v = np.rint(kin[1] * c[..., 1] / c[..., 2] + kin[3])
-        hh, ww = depth.shape
-        inside_img = (c[..., 2] > 0) & (u >= 0) & (v >= 0) & (u < ww) & (v < hh)
-        r = depth[np.where(inside_img, v, 0).astype(int), np.where(inside_img, u, 0).astype(int)]
-        seen = inside_img & np.isfinite(r) & (np.linalg.norm(c, axis=-1) <= r + 3.0 + 0.03 * r)
-        hidden &= ~seen
+        own, there = view_lookup(centre, w2c, kin, depth)
+        # in front of (or on) what the view shows there: the view sees this wall itself
+        with np.errstate(invalid="ignore"):
+            hidden &= ~(np.isfinite(there) & (own <= there + 3.0 + 0.03 * there))
     rho = float(np.median(albedo[above]))
     faces = []
     bins = np.argmax(normal @ _NORMAL_BINS.T, axis=1)
@@ -380,16 +399,9 @@ def _unseen_pixels(other: SurfaceImage, pose: np.ndarray, seen: list,
     p = other.points_mm() @ pose[:3, :3].T + pose[:3, 3]
     keep = other.valid.copy()
     for w2c, kin, depth in seen:
-        c = p @ w2c[:, :3].T + w2c[:, 3]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.rint(kin[0] * c[..., 0] / c[..., 2] + kin[2])
-            v = np.rint(kin[1] * c[..., 1] / c[..., 2] + kin[3])
-        h, w = depth.shape
-        inside = (c[..., 2] > 0) & (u >= 0) & (v >= 0) & (u < w) & (v < h)
-        ui = np.where(inside, u, 0).astype(int)
-        vi = np.where(inside, v, 0).astype(int)
-        d = depth[vi, ui]
-        keep &= ~(inside & (np.abs(np.linalg.norm(c, axis=-1) - d) <= 2.0 + 0.01 * d))
+        own, there = view_lookup(p, w2c, kin, depth)
+        with np.errstate(invalid="ignore"):
+            keep &= ~(np.abs(own - there) <= 2.0 + 0.01 * there)
     if world_plane is not None:
         n, d = world_plane[:3], world_plane[3]
         close = np.abs(p @ n - d) <= _tolerance(p - pose[:3, 3])
@@ -440,19 +452,14 @@ def fusion_views(references: Sequence[np.ndarray | None], poses_mm: Sequence[np.
     for j in range(lo, hi):
         if j == index or references[j] is None or poses_mm[j] is None:
             continue
-        inv = np.linalg.inv(poses_mm[j])
-        c = world @ inv[:3, :3].T + inv[:3, 3]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.rint(intrinsics.fx * c[:, 0] / c[:, 2] + intrinsics.cx)
-            v = np.rint(intrinsics.fy * c[:, 1] / c[:, 2] + intrinsics.cy)
-        inside = (c[:, 2] > 0) & (u >= 0) & (v >= 0) & (u < intrinsics.width) & \
-            (v < intrinsics.height)
-        d = np.asarray(references[j], np.float64)[np.where(inside, v, 0).astype(int),
-                                                  np.where(inside, u, 0).astype(int)]
-        seen = inside & np.isfinite(d)
+        inv = np.linalg.inv(poses_mm[j])[:3]
+        kin = np.array([intrinsics.fx, intrinsics.fy, intrinsics.cx, intrinsics.cy])
+        own, d = view_lookup(world, inv, kin, np.asarray(references[j], np.float64))
+        seen = np.isfinite(d)
         if seen.sum() < min_points:
             continue
-        agree = np.abs(np.linalg.norm(c, axis=1) - d) <= 2.0 + 0.01 * d
+        with np.errstate(invalid="ignore"):
+            agree = np.abs(own - d) <= 2.0 + 0.01 * d
         if (agree & seen).sum() >= min_agreement * seen.sum():
             scored.append((float(pose[:3, 2] @ poses_mm[j][:3, 2]), j))
     return [j for _, j in sorted(scored)[:max_views]]
