@@ -20,6 +20,10 @@ from tof_mpd_ros.mismatch.fit import FitResult
 from tof_mpd_ros.mismatch.predict import noise_std_mm
 from tof_mpd_ros.sim.tof import ToFConfig
 
+# each analysis renders and fits many predictions with the multi-bounce transport: minutes on a
+# busy 2-core machine, so the per-test limit is generous (a hang still ends the run)
+pytestmark = pytest.mark.timeout(2400)
+
 NOMINAL = ToFConfig.nominal()
 
 def _drift_at_frame5(p: dict) -> float:
