@@ -20,8 +20,9 @@ from tof_mpd_ros.mismatch.fit import FitResult
 from tof_mpd_ros.mismatch.predict import noise_std_mm
 from tof_mpd_ros.sim.tof import ToFConfig
 
-# each analysis renders and fits many predictions with the multi-bounce transport: minutes on a
-# busy 2-core machine, so the per-test limit is generous (a hang still ends the run)
+# each analysis of a sweep renders and fits many predictions with the multi-bounce transport
+# (issue 12): over ten minutes each on a busy 2-core machine, too long for the default run
+# until the mismatch tool is reworked on the new physics (issue 13); `pytest -m slow` runs them
 pytestmark = pytest.mark.timeout(2400)
 
 NOMINAL = ToFConfig.nominal()
@@ -70,6 +71,7 @@ def _check(sweep, effect: str) -> None:
         result.metrics["interior_excess_rmse_before_mm"] + 1e-9
 
 
+@pytest.mark.slow
 def test_control_is_none(sweep):
     result = analyse(sweep({}), max_effects=1)
     assert result.selected == []
@@ -78,6 +80,7 @@ def test_control_is_none(sweep):
     assert len(result.rounds[0]) == 12
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effect", FAST)
 def test_effect_is_identified(sweep, effect):
     _check(sweep, effect)
