@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from scipy.ndimage import median_filter
 
+from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.sim.cell import CameraModel
 from tof_mpd_ros.sim.objects import ObjectSpec
 from tof_mpd_ros.sim.poses import look_at
@@ -134,6 +135,21 @@ def test_hidden_faces_are_inferred_by_extrusion_or_seen_by_other_views(cube):
     assert table_rmse(without) > 0.7
     assert table_rmse(alone) < 0.5 * table_rmse(without)
     assert table_rmse(fused) < 0.5 * table_rmse(without)
+
+
+@pytest.mark.parametrize("coarse", [1, 4])
+def test_extruded_walls_stand_for_the_hidden_faces_at_any_pixel_size(coarse):
+    """The cube's two faces turned away from the camera (2 × 150 × 150 mm²) come back as
+    extruded walls — also when the pixels are 4× coarser than the height field's cells (each
+    pixel then fills several cells; left as isolated columns they grew walls around every gap:
+    5× the area and 100× the transport time)."""
+    k = Intrinsics(K.fx / coarse, K.fy / coarse, (K.cx + 0.5) / coarse - 0.5,
+                   (K.cy + 0.5) / coarse - 0.5, K.width // coarse, K.height // coarse)
+    pose = _pose([330.0, 0.0, 450.0])
+    world = world_from_surface(render_surface(_cube_scene(), pose, k), camera_to_world=pose,
+                               world_up=np.array([0.0, 0.0, 1.0]))
+    hidden_mm2 = 2 * 150.0 * 150.0
+    assert 0.8 * hidden_mm2 <= world.notes["extruded_wall_mm2"] <= 1.6 * hidden_mm2
 
 
 def test_fusion_picks_views_of_the_same_scene_only():

@@ -20,6 +20,7 @@ Units: mm; the world frame is the target camera's frame unless poses are given.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -215,6 +216,18 @@ def _plane_axes(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(n, e1)
 
 
+def _closing_size(uv: np.ndarray, cell_mm: float) -> int:
+    """Odd kernel size (cells) that closes the gaps between neighbouring points ``uv``
+    (M, 2) mm: the 90th percentile of their nearest-neighbour spacing."""
+    from scipy.spatial import cKDTree
+
+    if len(uv) < 2:
+        return 3
+    spacing, _ = cKDTree(uv).query(uv, k=2)
+    gap = float(np.percentile(spacing[:, 1], 90)) / cell_mm
+    return max(3, 2 * math.ceil(0.5 * gap) + 1)
+
+
 def extruded_objects(world_plane: np.ndarray, points: np.ndarray, albedo: np.ndarray,
                      views: list, cell_mm: float, leaf_mm: float
                      ) -> tuple[HeightField | None, list[FaceGrid]]:
@@ -252,7 +265,9 @@ def extruded_objects(world_plane: np.ndarray, points: np.ndarray, albedo: np.nda
     ij = np.floor((uv - lo) / cell_mm).astype(int)
     heights = np.zeros(shape)
     np.maximum.at(heights, (ij[:, 0], ij[:, 1]), up)
-    heights = grey_closing(heights, size=3)
+    # points are splatted into single cells: close the gaps between them (coarse pixels far
+    # from the camera are several cells apart; open gaps would each grow walls of their own)
+    heights = grey_closing(heights, size=_closing_size(uv, cell_mm))
     origin = foot + lo[0] * e1 + lo[1] * e2
     # occupancy one cell inside the outline: a cell on it is partly free space, and a ray
     # grazing a visible face must not be cut by the cell the face runs through
@@ -370,6 +385,7 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
                                         np.concatenate([o[1] for o in objects]), views,
                                         cell_mm=leaf_mm / 2.0, leaf_mm=leaf_mm)
         faces += walls
+        notes["extruded_wall_mm2"] = float(sum(f.area[f.valid].sum() for f in walls))
     if plane is not None:
         rho = float(np.median(surface.albedo[on_plane]))
         faces.append(_moved(_plane_face(plane, rho, leaf_mm, cutoff_deg), pose))
