@@ -16,8 +16,11 @@ from tof_mpd_ros.sim.poses import look_at
 from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table
 from tof_mpd_ros.sim.tof import ToFConfig, render_from_reference, render_tof
+from tof_mpd_ros.sim.tof.reference import surface_from_reference
 from tof_mpd_ros.sim.tof.reference_world import (
+    Plane,
     ReferenceView,
+    border_extension,
     fit_support_plane,
     fusion_views,
     world_from_surface,
@@ -147,9 +150,29 @@ def test_extruded_walls_stand_for_the_hidden_faces_at_any_pixel_size(coarse):
                    (K.cy + 0.5) / coarse - 0.5, K.width // coarse, K.height // coarse)
     pose = _pose([330.0, 0.0, 450.0])
     world = world_from_surface(render_surface(_cube_scene(), pose, k), camera_to_world=pose,
-                               world_up=np.array([0.0, 0.0, 1.0]))
+                               world_up=np.array([0.0, 0.0, 1.0]), border_fraction=0.0)
     hidden_mm2 = 2 * 150.0 * 150.0
     assert 0.8 * hidden_mm2 <= world.notes["extruded_wall_mm2"] <= 1.6 * hidden_mm2
+
+
+def test_a_surface_cut_by_the_border_continues_on_its_plane():
+    """A tilted plane filling the image: the margin's rays meet the same plane (to the
+    normals' accuracy), every margin pixel is filled, and as the support plane (exact
+    elsewhere) it is not continued at all."""
+    n = np.array([0.3, 0.2, -1.0]) / np.linalg.norm([0.3, 0.2, -1.0])
+    d = -400.0  # n·p = d, the camera on the side n points to
+    range_mm = d / (K.ray_directions() @ n)
+    surface = surface_from_reference(range_mm, K, 0.5)
+    wide, beyond = border_extension(surface, 20, None)
+    assert wide.intrinsics.shape == (K.height + 40, K.width + 40)
+    np.testing.assert_array_equal(wide.range_mm[20:-20, 20:-20], surface.range_mm)
+    margin = np.ones(wide.intrinsics.shape, bool)
+    margin[20:-20, 20:-20] = False
+    assert beyond[margin].mean() > 0.99 and not beyond[~margin].any()
+    off_plane = wide.points_mm()[beyond] @ n - d
+    assert np.max(np.abs(off_plane)) < 0.05
+    _, none = border_extension(surface, 20, Plane(n, d, 1.0))
+    assert not none.any()
 
 
 def test_fusion_picks_views_of_the_same_scene_only():
@@ -169,6 +192,6 @@ def test_fusion_picks_views_of_the_same_scene_only():
 def test_world_from_a_range_image_without_a_plane_keeps_its_pixels():
     scene = _cube_scene()
     surf = render_surface(scene, _pose([330.0, 0.0, 450.0]), K)
-    world = world_from_surface(surf, extend_plane=False)
+    world = world_from_surface(surf, extend_plane=False, border_fraction=0.0)
     assert world.tree.n_leaves == int(surf.valid.sum())
     assert world.support_plane is None and world.lit.all()

@@ -2,7 +2,7 @@
 lone plane, and agreement with an independent brute-force one-bounce integration.
 
 The analytic surfaces here are range images: the world light travels through is what the image
-shows (``extend_plane=False``), unless a test says otherwise."""
+shows (``extend_plane=False, border_fraction=0``), unless a test says otherwise."""
 
 from __future__ import annotations
 
@@ -41,13 +41,14 @@ POWER = MULTIPATH.light_power
 
 def _image_only(surface, config=MULTIPATH, **kw):
     """Render ``surface`` with the image as the whole world (no inferred support plane)."""
-    world = world_from_surface(surface, extend_plane=False)
+    world = world_from_surface(surface, extend_plane=False, border_fraction=0.0)
     return render_tof(surface, config, np.random.default_rng(0), supersample=1, world=world,
                       **kw)
 
 
 def _indirect(surface, *, bounces: int = 1, open_ratio: float = 3.0) -> np.ndarray:
-    return indirect_phasor(surface, world_from_surface(surface, extend_plane=False),
+    return indirect_phasor(surface, world_from_surface(surface, extend_plane=False,
+                                                      border_fraction=0.0),
                            mod_freq_hz=F_MOD, light_power=POWER, bounces=bounces,
                            open_ratio=open_ratio)
 

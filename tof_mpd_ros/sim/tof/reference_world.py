@@ -7,6 +7,10 @@ box's side face). This module fills in what can be inferred and states what cann
 * **the support plane** — fitted robustly (RANSAC, then least squares on its inliers) and
   preferred over other planes when nothing lies behind it — is extended across the light's cone
   outside the image, with the albedo of its visible part;
+* **surfaces cut by the image border** (a wall rising out of the frame, an object's face
+  running past it) continue past the border on their own plane for a band of
+  ``BORDER_FRACTION`` of the image: light from just outside the frame matters most, and
+  what lies further out is unknown;
 * **other views** of the same scene, placed by their poses, add the surfaces only they saw
   (the back of an object, table hidden behind it here); free space is what any view saw through
   (space carving), so each view also refines visibility;
@@ -49,6 +53,12 @@ from .world import (
 MAX_REACH = 4.0
 #: a plane must hold this fraction of the valid pixels to be extended
 MIN_PLANE_FRACTION = 0.1
+#: surfaces cut by the image border continue past it by this fraction of the image's larger
+#: side (see :func:`border_extension`)
+BORDER_FRACTION = 0.15
+#: a surface is continued past the border only where the rays meet it at least this steeply
+#: (cosine of the incidence angle): a grazing plane would run off to far ranges
+MIN_BORDER_COS = math.cos(math.radians(75.0))
 
 
 @dataclass(frozen=True)
@@ -321,12 +331,61 @@ def plane_pixels(surface: SurfaceImage, plane: Plane, max_tilt_deg: float = 25.0
     return close & facing & surface.valid
 
 
+def border_extension(surface: SurfaceImage, margin_px: int,
+                     plane: Plane | None = None) -> tuple[SurfaceImage, np.ndarray]:
+    """The image widened by ``margin_px`` on every side, each border pixel's surface continued.
+
+    A margin pixel takes the plane (point and normal) of its nearest image pixel and its ray
+    is intersected with it. It stays empty where that pixel is missing or lies on the support
+    plane (``plane``: represented exactly elsewhere), where the ray meets the continued plane
+    at a grazing angle (``MIN_BORDER_COS``) or beyond twice the border pixel's range, and
+    where the support plane is hit first.
+
+    Args:
+        surface: the range image's surface (pixel resolution, camera frame).
+        margin_px: pixels added on every side.
+        plane: the support plane, or None.
+
+    Returns:
+        The widened surface ((H + 2m, W + 2m), the image itself in its centre) and (H + 2m,
+        W + 2m) bool its margin pixels that hold a continued surface.
+    """
+    k, m = surface.intrinsics, int(margin_px)
+    h, w = k.shape
+    wide = Intrinsics(k.fx, k.fy, k.cx + m, k.cy + m, w + 2 * m, h + 2 * m)
+    vv = np.clip(np.arange(h + 2 * m) - m, 0, h - 1)[:, None]
+    uu = np.clip(np.arange(w + 2 * m) - m, 0, w - 1)[None, :]
+    source = surface.valid if plane is None else surface.valid & ~plane_pixels(surface, plane)
+    points = surface.points_mm()[vv, uu]
+    normal = surface.normal[vv, uu]
+    rays = wide.ray_directions()
+    with np.errstate(invalid="ignore", divide="ignore"):
+        facing = -np.einsum("hwk,hwk->hw", rays, normal)
+        t = np.einsum("hwk,hwk->hw", points, normal) / -facing
+        ok = source[vv, uu] & (facing >= MIN_BORDER_COS) & (t > 0) \
+            & (t <= 2.0 * np.linalg.norm(points, axis=-1))
+        if plane is not None:
+            t_plane = plane.offset_mm / (rays @ plane.normal)
+            ok &= ~((t_plane > 0) & (t_plane < t))
+    ok[m:m + h, m:m + w] = False
+    range_mm = np.where(ok, t, np.nan)
+    range_mm[m:m + h, m:m + w] = surface.range_mm
+    keep = ok | np.pad(surface.valid, m)
+    wide_surface = SurfaceImage(
+        range_mm, np.where(keep[..., None], normal, np.nan),
+        np.where(keep, surface.albedo[vv, uu], 0.0),
+        np.where(keep, surface.object_id[vv, uu], -1).astype(np.int32),
+        np.where(keep, surface.material_id[vv, uu], -1).astype(np.int32), wide)
+    return wide_surface, ok
+
+
 def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_MM,
                        cutoff_deg: float = DEFAULT_CUTOFF_DEG,
                        beam_deg: float = DEFAULT_BEAM_DEG, extend_plane: bool = True,
                        others: tuple[tuple[SurfaceImage, np.ndarray], ...] = (),
                        camera_to_world: np.ndarray | None = None,
-                       world_up: np.ndarray | None = None, extrude: bool = True) -> WorldModel:
+                       world_up: np.ndarray | None = None, extrude: bool = True,
+                       border_fraction: float = BORDER_FRACTION) -> WorldModel:
     """The world seen in a range image (plus, optionally, other views of the same scene).
 
     The support plane, when one is found, replaces its pixels by an exact plane across the
@@ -345,6 +404,8 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
         extrude: with a support plane, extrude the off-plane surfaces down to it (walls for
             the faces no view sees, and a height field for visibility); False = the views'
             surfaces only, visibility by carving.
+        border_fraction: continue the surfaces cut by the target's border past it by this
+            fraction of its larger side (:func:`border_extension`); 0 = not at all.
 
     Returns:
         WorldModel with depth-map visibility (space carving over all views).
@@ -379,6 +440,14 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
         faces += surface_faces(other, other_pose, unseen)
         objects.append((other.points_mm()[unseen] @ other_pose[:3, :3].T + other_pose[:3, 3],
                         other.albedo[unseen]))
+    margin = round(border_fraction * max(surface.intrinsics.shape))
+    if margin > 0:
+        # assumed surfaces: leaves that send light, not a view (nothing was seen through them)
+        wide, beyond = border_extension(surface, margin, plane)
+        faces += surface_faces(wide, pose, beyond)
+        objects.append((wide.points_mm()[beyond] @ pose[:3, :3].T + pose[:3, 3],
+                        wide.albedo[beyond]))
+        notes["border_extension_px"] = margin
     field = None
     if plane is not None and extrude:
         field, walls = extruded_objects(world_plane, np.concatenate([o[0] for o in objects]),
