@@ -7,7 +7,12 @@ import json
 import os
 from pathlib import Path
 
-from ..errors import InputError
+from ..errors import InputError, SimulationError
+
+#: the one-line error when ``--renderer pathtrace`` cannot load the path tracer
+PATHTRACE_MISSING = ("--renderer pathtrace needs the optional path tracer: pip install "
+                     "'.[pathtrace]' (Mitsuba 3 + mitransient) and a system LLVM library "
+                     "(Debian/Ubuntu: apt-get install libllvm19) [{reason}]")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -22,7 +27,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "checkerboard calibration captures. Writes OUT/md_train, OUT/md_test, "
                     "OUT/calibration (rosbag2 MCAP recordings) and OUT/dataset.json. Takes "
                     "about 1-2 s per frame per core: the full paper-sized set (900 frames + 770 "
-                    "captures) about 15-25 min on 2 cores; --small about 1-2 min.")
+                    "captures) about 15-25 min on 2 cores; --small about 1-2 min. "
+                    "--renderer pathtrace renders the light transport with Mitsuba 3 "
+                    "(optional extra [pathtrace]; objects may then be glossy, metal or "
+                    "translucent) and applies the same camera modules on top; several seconds "
+                    "per frame (docs/physics.md, Path-traced datasets).")
     dataset.add_argument("out", type=Path, help="output directory (must not exist)")
     dataset.add_argument("--small", action="store_true",
                          help="4 train + 2 test scenes x 6 views, 120 captures")
@@ -33,6 +42,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     dataset.add_argument("--seed", type=int, default=0)
     dataset.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                          help="worker processes (default: all cores)")
+    dataset.add_argument("--renderer", choices=("builtin", "pathtrace"), default="builtin",
+                         help="light transport: the built-in renderer (default) or the Mitsuba "
+                              "path tracer (needs the [pathtrace] extra)")
+    dataset.add_argument("--spp", type=int, default=64,
+                         help="path tracer samples per pixel (16, 32, 48, 64 or a multiple of "
+                              "64; default 64)")
     dataset.set_defaults(func=run_dataset)
 
     predict = commands.add_parser(
@@ -71,14 +86,33 @@ def _spec(args: argparse.Namespace):
     return DatasetSpec(**values)
 
 
+def _cell(args: argparse.Namespace):
+    """The simulated cell with the chosen renderer (the path tracer loaded and checked)."""
+    from ..sim.cell import SimCell
+
+    if args.renderer == "pathtrace":
+        from ..sim.pathtrace import render as pathtrace
+
+        try:
+            pathtrace.load_mitsuba()
+        except SimulationError as err:
+            reason = " ".join(str(err).split())
+            raise SimulationError(PATHTRACE_MISSING.format(reason=reason)) from err
+    try:
+        return SimCell(renderer=args.renderer, pathtrace_spp=args.spp)
+    except SimulationError as err:
+        raise InputError(f"--spp: {err}") from err
+
+
 def run_dataset(args: argparse.Namespace) -> int:
     from ..sim.dataset import generate_dataset
 
     if args.out.exists():
         raise InputError(f"{args.out} already exists; choose a new directory")
-    summary = generate_dataset(args.out, _spec(args), workers=args.workers)
-    print(json.dumps({"out": str(args.out), "frames": summary["frames"],
-                      "seconds": summary["seconds"]}))
+    spec = _spec(args)
+    summary = generate_dataset(args.out, spec, workers=args.workers, cell=_cell(args))
+    print(json.dumps({"out": str(args.out), "renderer": summary["renderer"]["name"],
+                      "frames": summary["frames"], "seconds": summary["seconds"]}))
     return 0
 
 

@@ -9,6 +9,18 @@ Rendering window: the camera renders the recorded crop plus a margin on every si
 just outside the crop still send interreflected light into it, and then keeps the crop. Every
 capture of one camera uses the same window, so the fixed-pattern pixel errors are the same at
 the same sensor pixel in calibration captures and scene captures.
+
+Renderers (``SimCell.renderer``): ``"builtin"`` (default) ray-casts the window and runs the
+camera's whole pipeline (:func:`.tof.render_tof`: footprint, world-space multipath, noise,
+readout, systematic errors). ``"pathtrace"`` (optional extra ``[pathtrace]``) renders the light
+transport of the window at pixel resolution with Mitsuba 3 + mitransient
+(:func:`.pathtrace.render.render_phasor`: every bounce, each object's material — glossy, metal,
+translucent — and each pixel's area, so mixed pixels are in it) and hands that phasor to
+``render_tof(..., transport=...)``, so noise, readout and systematic errors come from the same
+camera modules. The footprint stage (with its optical blur ``psf_sigma_px``), ``multipath``
+and ``subsurface`` are then not applied: the path tracer's light transport replaces them. The
+structured-light reference is the same ray-cast one for both. Calibration captures stay
+built-in for both: the checkerboard is a single plane, which exchanges no light with itself.
 """
 
 from __future__ import annotations
@@ -21,13 +33,17 @@ from ..camera import PAPER_CROP, Intrinsics
 from ..errors import SimulationError
 from ..frame import ToFFrame
 from .checkerboard import CheckerboardConfig, render_checkerboard
+from .pathtrace.light import SpotLight
 from .poses import pose_mm_to_m
 from .raycast import render_surface
 from .scene import Scene
 from .structured_light import FusionConfig, StructuredLightConfig, reference_range
+from .surface import SurfaceImage
 from .tof import ToFConfig, render_tof
-from .tof.render import centre_samples
+from .tof.render import ToFMeasurement, centre_samples
 from .tof.world import world_from_scene
+
+RENDERERS = ("builtin", "pathtrace")
 
 
 @dataclass
@@ -89,16 +105,37 @@ class SimCell:
         camera: image geometry.
         tof: AMCW physics configuration (nominal by default).
         structured_light: the SL sensor; ``fusion`` its multi-scan fusion settings.
+        renderer: ``"builtin"`` or ``"pathtrace"`` (see the module docstring).
+        pathtrace_spp: path tracer samples per pixel (a multiple of 16 up to 64, else of 64).
+        pathtrace_max_depth: path tracer depth (−1: every bounce; Russian roulette from
+            :data:`.pathtrace.render.DATASET_RR_DEPTH` on).
     """
 
     camera: CameraModel = field(default_factory=CameraModel)
     tof: ToFConfig = field(default_factory=ToFConfig.nominal)
     structured_light: StructuredLightConfig = field(default_factory=StructuredLightConfig)
     fusion: FusionConfig = field(default_factory=FusionConfig)
+    renderer: str = "builtin"
+    pathtrace_spp: int = 64
+    pathtrace_max_depth: int = -1
+
+    def __post_init__(self) -> None:
+        if self.renderer not in RENDERERS:
+            raise SimulationError(f"renderer must be one of {RENDERERS}, got {self.renderer!r}")
+        if self.renderer == "pathtrace":
+            _pass_size(self.pathtrace_spp)
+            if self.tof.effects["hand_eye"].enabled:
+                raise SimulationError("the path tracer renders from the given pose: switch "
+                                      "hand_eye off with renderer='pathtrace'")
+
+    @property
+    def materials(self) -> str:
+        """The object library's material set scenes for this cell are drawn from."""
+        return "pathtrace" if self.renderer == "pathtrace" else "builtin"
 
     def capture(self, scene: Scene, camera_to_base_mm: np.ndarray, rng: np.random.Generator,
-                *, frame_index: int = 0, stamp_ns: int = 0,
-                with_reference: bool = True) -> ToFFrame:
+                *, frame_index: int = 0, stamp_ns: int = 0, with_reference: bool = True,
+                pathtrace_seed: int = 0) -> ToFFrame:
         """One ToF frame of ``scene`` from a camera pose, with the fused SL reference.
 
         Args:
@@ -108,6 +145,8 @@ class SimCell:
             frame_index: position in the sequence (temperature drift).
             stamp_ns: capture time, integer nanoseconds.
             with_reference: also run the SL scans and fusion (the slow part).
+            pathtrace_seed: the path tracer's seed in [0, 65536) (``renderer="pathtrace"``
+                only; the render is a deterministic function of it).
 
         Returns:
             ToFFrame of the crop: radial range and amplitude, reference (NaN = missing), pose in
@@ -115,15 +154,12 @@ class SimCell:
         """
         cam = self.camera
         surface = render_surface(scene, camera_to_base_mm, cam.window.scaled(cam.supersample))
-        world = None
-        if self.tof.effects["multipath"].enabled:
-            p = self.tof.params("multipath")
-            world = world_from_scene(scene, camera_to_base_mm, leaf_mm=float(p["leaf_mm"]),
-                                     cutoff_deg=float(p["cutoff_deg"]),
-                                     beam_deg=float(p["beam_deg"]))
-        # the margin's pixels need no indirect light of their own
-        measurement = render_tof(surface, self.tof, rng, supersample=cam.supersample,
-                                 frame_index=frame_index, receivers=cam.crop_mask, world=world)
+        if self.renderer == "pathtrace":
+            measurement = self._render_pathtrace(scene, camera_to_base_mm, surface, rng,
+                                                 frame_index, pathtrace_seed)
+        else:
+            measurement = self._render_builtin(scene, camera_to_base_mm, surface, rng,
+                                               frame_index)
         reference = None
         if with_reference:
             reference = reference_range(scene, camera_to_base_mm, cam.intrinsics, rng,
@@ -135,6 +171,43 @@ class SimCell:
                         reference_mm=reference, stamp_ns=stamp_ns,
                         pose=pose_mm_to_m(camera_to_base_mm),
                         albedo=cam.keep_crop(albedo))
+
+    def _render_builtin(self, scene: Scene, camera_to_base_mm: np.ndarray,
+                        surface: SurfaceImage, rng: np.random.Generator,
+                        frame_index: int) -> ToFMeasurement:
+        """The window's measurement by the built-in pipeline (world-space multipath)."""
+        cam = self.camera
+        world = None
+        if self.tof.effects["multipath"].enabled:
+            p = self.tof.params("multipath")
+            world = world_from_scene(scene, camera_to_base_mm, leaf_mm=float(p["leaf_mm"]),
+                                     cutoff_deg=float(p["cutoff_deg"]),
+                                     beam_deg=float(p["beam_deg"]))
+        # the margin's pixels need no indirect light of their own
+        return render_tof(surface, self.tof, rng, supersample=cam.supersample,
+                          frame_index=frame_index, receivers=cam.crop_mask, world=world)
+
+    def _render_pathtrace(self, scene: Scene, camera_to_base_mm: np.ndarray,
+                          surface: SurfaceImage, rng: np.random.Generator, frame_index: int,
+                          seed: int) -> ToFMeasurement:
+        """The window's measurement: path-traced transport, the camera's own sensor modules."""
+        from .pathtrace.render import DATASET_RR_DEPTH, render_phasor
+
+        cam = self.camera
+        p = self.tof.params("multipath")
+        light = SpotLight(cone_half_angle_deg=float(p["cutoff_deg"]),
+                          beam_width_deg=float(p["beam_deg"]), light_power=self.tof.light_power)
+        # (H, W) complex128 phasor of the window, every path, simulator amplitude units
+        transport = render_phasor(scene, camera_to_base_mm, cam.window,
+                                  mod_freq_hz=self.tof.mod_freq_hz, spp=self.pathtrace_spp,
+                                  max_depth=self.pathtrace_max_depth, seed=seed, light=light,
+                                  spp_per_pass=_pass_size(self.pathtrace_spp),
+                                  rr_depth=DATASET_RR_DEPTH)
+        config = self.tof
+        if config.effects["subsurface"].enabled:  # the path tracer has it (translucent media)
+            config = config.with_effect("subsurface", enabled=False)
+        return render_tof(surface, config, rng, supersample=cam.supersample,
+                          frame_index=frame_index, transport=transport)
 
     def capture_checkerboard(self, board_to_camera_mm: np.ndarray, rng: np.random.Generator,
                              *, board: CheckerboardConfig | None = None,
@@ -164,6 +237,18 @@ class SimCell:
                         intrinsics=cam.intrinsics, mod_freq_hz=self.tof.mod_freq_hz,
                         reference_mm=cam.keep_crop(truth).astype(np.float32),
                         stamp_ns=stamp_ns, albedo=cam.keep_crop(centre.albedo))
+
+
+def _pass_size(spp: int) -> int:
+    """Samples per path-tracer pass for ``spp`` samples per pixel (at most 64, to bound memory).
+
+    Raises:
+        SimulationError: ``spp`` is not a positive multiple of 16 (up to 64) or of 64.
+    """
+    if isinstance(spp, (int, np.integer)) and spp >= 16 and spp % 16 == 0 and \
+            (spp <= 64 or spp % 64 == 0):
+        return int(min(spp, 64))
+    raise SimulationError(f"pathtrace_spp must be 16, 32, 48, 64 or a multiple of 64, got {spp!r}")
 
 
 def _interior(mask: np.ndarray) -> np.ndarray:

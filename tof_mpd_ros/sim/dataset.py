@@ -5,10 +5,17 @@ A dataset directory holds three recordings (rosbag2 MCAP) and a summary:
 * ``md_train/`` — ``n_train_scenes`` scenes of *train* library objects x 18 viewpoints;
 * ``md_test/`` — ``n_test_scenes`` scenes of the disjoint *test* objects x 18 viewpoints;
 * ``calibration/`` — graded-checkerboard captures for the per-pixel calibration;
-* ``dataset.json`` — the spec, per-frame scene/view indices, rejected viewpoints and timings.
+* ``dataset.json`` — the spec, the renderer, per-frame scene/view indices, rejected viewpoints
+  and timings.
 
 Every scene draws from its own generator ``default_rng([seed, split, scene])``, so scenes are
 independent of each other and of the number of worker processes.
+
+The cell's renderer (``SimCell.renderer``) picks the scenes' material set: a path-traced dataset
+(``"pathtrace"``) draws the same objects at the same places as the built-in one of the same seed,
+some of them glossy or metal (:mod:`.objects`). The path tracer's seed of each view is drawn from
+``default_rng([seed, split, scene, view])`` (:func:`pathtrace_seed`), so a path-traced dataset is
+reproducible too. Calibration captures are built-in for both renderers.
 """
 
 from __future__ import annotations
@@ -81,19 +88,26 @@ def scene_rng(seed: int, split: str, scene: int) -> np.random.Generator:
     return np.random.default_rng([seed, SPLIT_IDS[split], scene])
 
 
+def pathtrace_seed(seed: int, split: str, scene: int, view: int) -> int:
+    """The path tracer's seed in [0, 65536) of one view of one scene (a pure function)."""
+    return int(np.random.default_rng([seed, SPLIT_IDS[split], scene, view]).integers(1 << 16))
+
+
 def capture_scene(split: str, scene_index: int, spec: DatasetSpec,
                   cell: SimCell | None = None) -> SceneCapture:
     """Build one scene, plan its views and capture every view with its SL reference."""
     start = time.perf_counter()
     cell = SimCell() if cell is None else cell
     rng = scene_rng(spec.seed, split, scene_index)
-    scene = make_scene(split, rng)
+    scene = make_scene(split, rng, materials=cell.materials)
     n_bands = 3 if spec.views_per_scene % 3 == 0 else 1
     plan = plan_viewpoints(scene, rng, ViewpointConfig(n_views=spec.views_per_scene,
                                                        n_height_bands=n_bands))
     base_ns = START_NS + SPLIT_IDS[split] * 100 * SCENE_PERIOD_NS + scene_index * SCENE_PERIOD_NS
     frames = [cell.capture(scene, view.camera_to_base_mm, rng, frame_index=view.index,
-                           stamp_ns=base_ns + view.index * VIEW_PERIOD_NS)
+                           stamp_ns=base_ns + view.index * VIEW_PERIOD_NS,
+                           pathtrace_seed=pathtrace_seed(spec.seed, split, scene_index,
+                                                         view.index))
               for view in plan.viewpoints]
     return SceneCapture(split, scene_index, frames,
                         [o.spec.library_id for o in scene.objects],
@@ -130,11 +144,18 @@ def _run_calibration_chunk(chunk: tuple[int, int], spec: DatasetSpec,
     return SceneCapture("calibration", chunk[0], frames, [], [], time.perf_counter() - start)
 
 
-def _init_worker(threads: int) -> None:
-    """Worker start-up: numba kernels use ``threads`` threads."""
+def _init_worker(threads: int, pathtrace: bool = False) -> None:
+    """Worker start-up: numba kernels (and the path tracer) use ``threads`` threads."""
     import numba
 
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    if pathtrace:
+        from .pathtrace.render import load_mitsuba
+
+        load_mitsuba()
+        import drjit
+
+        drjit.set_thread_count(threads)
 
 
 def iter_captures(spec: DatasetSpec, *, workers: int = 1,
@@ -158,11 +179,26 @@ def iter_captures(spec: DatasetSpec, *, workers: int = 1,
     # fork-safe. The workers share the cores, so each runs its kernels on its share of them
     # rather than all of them (outputs do not depend on the thread count).
     threads = max(1, (os.cpu_count() or 1) // workers)
+    pathtrace = cell is not None and cell.renderer == "pathtrace"
     with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
-                             initializer=_init_worker, initargs=(threads,)) as pool:
+                             initializer=_init_worker, initargs=(threads, pathtrace)) as pool:
         futures = [pool.submit(fn, *args) for fn, args in tasks]
         for future in futures:  # in submission order, so recordings are written in order
             yield future.result()
+
+
+def renderer_summary(cell: SimCell | None) -> dict:
+    """What rendered the scenes, for ``dataset.json``: name, material set and, for the path
+    tracer, samples per pixel, depth, Russian-roulette depth and library versions."""
+    cell = SimCell() if cell is None else cell
+    out: dict = {"name": cell.renderer, "materials": cell.materials,
+                 "calibration": "builtin"}
+    if cell.renderer == "pathtrace":
+        from .pathtrace.render import DATASET_RR_DEPTH, versions
+
+        out.update({"spp": cell.pathtrace_spp, "max_depth": cell.pathtrace_max_depth,
+                    "rr_depth": DATASET_RR_DEPTH, "versions": versions()})
+    return out
 
 
 def generate_dataset(out_dir: str | Path, spec: DatasetSpec, *, workers: int = 1,
@@ -178,11 +214,15 @@ def generate_dataset(out_dir: str | Path, spec: DatasetSpec, *, workers: int = 1
     from ..recordings.writer import RecordingWriter
 
     out = Path(out_dir)
+    if out.exists():
+        raise FileExistsError(f"{out} already exists")
+    renderer = renderer_summary(cell)  # loads the path tracer first, if there is one
     out.mkdir(parents=True, exist_ok=False)
     names = {"train": "md_train", "test": "md_test", "calibration": "calibration"}
     writers = {split: RecordingWriter(out / name, compression=compression)
                for split, name in names.items()}
-    summary: dict = {"spec": asdict(spec), "recordings": names, "scenes": [], "seconds": 0.0}
+    summary: dict = {"spec": asdict(spec), "renderer": renderer,
+                     "recordings": names, "scenes": [], "seconds": 0.0}
     total = spec.n_train_scenes + spec.n_test_scenes + -(-spec.n_calibration // 50)
     start = time.perf_counter()
     try:

@@ -7,12 +7,27 @@ the same shape, size, albedo and material in every run. It is split by identity 
 Every shape is described in its own *object frame*, in millimetres: origin at the centre of the
 footprint on the table, z up, so the object rests on the table at z = 0 and occupies z in
 [0, height].
+
+Materials come in two sets (``MATERIAL_SETS``), chosen by the renderer a dataset is made for:
+
+* ``"builtin"`` (the default, what the built-in renderer's datasets use): Lambertian diffusers,
+  and about 15 % translucent plastic or wax (the ``subsurface`` effect's materials);
+* ``"pathtrace"`` (``tof-mpd sim dataset --renderer pathtrace``): the same library — same shapes,
+  sizes, albedos, translucent objects, and the same draws in :func:`~.scene.make_scene` — with
+  about a quarter of the diffuse objects made glossy plastic (a diffuse base of the object's
+  albedo under a rough clear coat) and a quarter metal (aluminium or steel, rough). A metal's
+  ``albedo`` is its normal-incidence reflectance in the near infrared (from ``METAL_IOR``).
+
+The path tracer (:mod:`.pathtrace.materials`) renders every material as what it is. The built-in
+renderer has no specular or glossy transport: it treats glossy plastic and metal as Lambertian
+diffusers of their ``albedo`` (so a metal box is a bright diffuse box to it), and the
+translucent materials as diffuse unless ``subsurface`` is on.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from typing import Literal
 
@@ -36,9 +51,22 @@ MIN_ASPECT = 0.4
 MATERIAL_DIFFUSE = 0
 MATERIAL_TRANSLUCENT_PLASTIC = 1
 MATERIAL_WAX = 2
+#: path-traced datasets only (the built-in renderer draws them as diffusers of their albedo)
+MATERIAL_GLOSSY_PLASTIC = 3
+MATERIAL_ALUMINIUM = 4
+MATERIAL_STEEL = 5
 MATERIAL_NAMES = {MATERIAL_DIFFUSE: "diffuse", MATERIAL_TRANSLUCENT_PLASTIC: "translucent_plastic",
-                  MATERIAL_WAX: "wax"}
+                  MATERIAL_WAX: "wax", MATERIAL_GLOSSY_PLASTIC: "glossy_plastic",
+                  MATERIAL_ALUMINIUM: "aluminium", MATERIAL_STEEL: "steel"}
 NON_DEFAULT_MATERIAL_FRACTION = 0.15
+#: complex refractive index (n, k) of the metals near 850 nm (the ToF LED), approximate
+#: literature values: normal-incidence reflectance ≈ 0.87 (aluminium) and ≈ 0.55 (steel ~ iron)
+METAL_IOR = {MATERIAL_ALUMINIUM: (2.80, 8.45), MATERIAL_STEEL: (2.90, 3.30)}
+
+MATERIAL_SETS = ("builtin", "pathtrace")
+#: share of the library's diffuse objects made glossy plastic / metal in the "pathtrace" set
+GLOSSY_FRACTION = 0.25
+METAL_FRACTION = 0.25
 
 # Circles are approximated by a circumscribed polygon of this many sides for footprint checks.
 _CIRCLE_SIDES = 24
@@ -54,7 +82,8 @@ class ObjectSpec:
             cross-section in the x-z plane, extruded along y, lying on a rectangular face).
         dims_mm: (3,) extents in mm along object x, y, z: box (sx, sy, sz); cylinder
             (2r, 2r, h); sphere (2r, 2r, 2r); prism (base width, length, apex height).
-        albedo: diffuse near-infrared reflectance in [0, 1].
+        albedo: diffuse near-infrared reflectance in [0, 1] (a glossy plastic's diffuse base, a
+            metal's normal-incidence reflectance; what the built-in renderer uses for all).
         material_id: 0 = default diffuse; see ``MATERIAL_NAMES`` for the others.
         apex_offset_mm: prism only, x of the apex relative to the base centre, mm.
     """
@@ -161,28 +190,71 @@ def _make_object(library_id: int, kind: str, rng: np.random.Generator) -> Object
     return ObjectSpec(library_id, kind, dims, float(albedo), material, float(apex))
 
 
-@lru_cache(maxsize=1)
-def object_library() -> tuple[ObjectSpec, ...]:
-    """All LIBRARY_SIZE objects, identical in every run (ids 1..LIBRARY_SIZE, kinds cycling)."""
-    rng = np.random.default_rng(LIBRARY_SEED)
-    return tuple(_make_object(i + 1, KINDS[i % len(KINDS)], rng) for i in range(LIBRARY_SIZE))
+def normal_reflectance(n: float, k: float) -> float:
+    """Reflectance at normal incidence of a surface of complex refractive index n + ik, in air:
+    ``((n − 1)² + k²) / ((n + 1)² + k²)``."""
+    return ((n - 1.0) ** 2 + k * k) / ((n + 1.0) ** 2 + k * k)
+
+
+def _pathtrace_material(spec: ObjectSpec) -> ObjectSpec:
+    """The object as the "pathtrace" set has it: a diffuse object may turn glossy or metal.
+
+    The draw comes from the object's own generator (library seed, 2, library id), so the
+    built-in library's draws are untouched and an object's material is the same in every run.
+    """
+    if spec.material_id != MATERIAL_DIFFUSE:
+        return spec
+    rng = np.random.default_rng([LIBRARY_SEED, 2, spec.library_id])
+    u = rng.random()
+    if u < GLOSSY_FRACTION:
+        return replace(spec, material_id=MATERIAL_GLOSSY_PLASTIC)
+    if u < GLOSSY_FRACTION + METAL_FRACTION:
+        metal = MATERIAL_ALUMINIUM if rng.random() < 0.5 else MATERIAL_STEEL
+        return replace(spec, material_id=metal, albedo=normal_reflectance(*METAL_IOR[metal]))
+    return spec
+
+
+def _check_materials(materials: str) -> None:
+    if materials not in MATERIAL_SETS:
+        raise InputError(f"materials must be one of {MATERIAL_SETS}, got {materials!r}")
 
 
 @lru_cache(maxsize=2)
-def library_split(split: str) -> tuple[ObjectSpec, ...]:
-    """The ``"train"`` or ``"test"`` half of the library, disjoint by object identity.
+def object_library(materials: str = "builtin") -> tuple[ObjectSpec, ...]:
+    """All LIBRARY_SIZE objects, identical in every run (ids 1..LIBRARY_SIZE, kinds cycling).
 
-    Each kind is split evenly, so both halves hold every kind of shape.
+    Args:
+        materials: ``"builtin"`` (diffuse, translucent plastic, wax) or ``"pathtrace"`` (the
+            same objects, some of the diffuse ones glossy or metal); see the module docstring.
 
     Raises:
-        InputError: for an unknown split name.
+        InputError: for an unknown material set.
+    """
+    _check_materials(materials)
+    rng = np.random.default_rng(LIBRARY_SEED)
+    library = tuple(_make_object(i + 1, KINDS[i % len(KINDS)], rng) for i in range(LIBRARY_SIZE))
+    if materials == "pathtrace":
+        return tuple(_pathtrace_material(o) for o in library)
+    return library
+
+
+@lru_cache(maxsize=4)
+def library_split(split: str, materials: str = "builtin") -> tuple[ObjectSpec, ...]:
+    """The ``"train"`` or ``"test"`` half of the library, disjoint by object identity.
+
+    Each kind is split evenly, so both halves hold every kind of shape. Both material sets
+    split the same identities.
+
+    Raises:
+        InputError: for an unknown split name or material set.
     """
     if split not in SPLITS:
         raise InputError(f"split must be one of {SPLITS}, got {split!r}")
+    library = object_library(materials)
     rng = np.random.default_rng(LIBRARY_SEED + 1)
     chosen: list[ObjectSpec] = []
     for kind in KINDS:
-        of_kind = [o for o in object_library() if o.kind == kind]
+        of_kind = [o for o in library if o.kind == kind]
         order = rng.permutation(len(of_kind))
         half = order[: len(of_kind) // 2] if split == "train" else order[len(of_kind) // 2:]
         chosen.extend(of_kind[i] for i in sorted(half))

@@ -219,7 +219,7 @@ def _try_place(spec: ObjectSpec, index: int, placed: list[PlacedObject], config:
 
 
 def make_scene(split: str, rng: np.random.Generator,
-               config: SceneConfig = SceneConfig()) -> Scene:
+               config: SceneConfig = SceneConfig(), *, materials: str = "builtin") -> Scene:
     """A random arrangement of 2-5 objects of one library split on the table.
 
     Objects are distinct library objects, rest on the table with a random yaw, and their
@@ -229,12 +229,16 @@ def make_scene(split: str, rng: np.random.Generator,
         split: ``"train"`` or ``"test"``.
         rng: source of randomness (the scene is a deterministic function of its state).
         config: arrangement parameters.
+        materials: the library's material set (:data:`.objects.MATERIAL_SETS`): ``"builtin"``,
+            or ``"pathtrace"`` for the path tracer (some objects glossy or metal). The draws are
+            the same, so for one ``rng`` state both give the same objects at the same places;
+            only their materials differ.
 
     Raises:
-        InputError: unknown split or inconsistent config.
+        InputError: unknown split, material set or inconsistent config.
         SimulationError: no free arrangement found within ``config.max_arrangements`` redraws.
     """
-    objects = library_split(split)
+    objects = library_split(split, materials)
     lo, hi = config.n_objects
     if not 1 <= lo <= hi <= len(objects):
         raise InputError(f"n_objects must satisfy 1 <= lo <= hi <= {len(objects)}, "

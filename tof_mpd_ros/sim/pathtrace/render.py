@@ -24,14 +24,20 @@ Camera: a small Python sensor plugin (``tof_pinhole``) casts the exact pinhole r
 in general) from the optical frame (x right, y down, z forward); the film's box pixel filter
 spreads each pixel's samples uniformly over its footprint, so depth-edge pixels mix their
 surfaces as a finite pixel does. Light: Mitsuba's ``spot`` emitter at the camera centre along the
-optical axis (:mod:`.light`). Surfaces: Lambertian ``diffuse`` BSDFs with each object's albedo;
-table = rectangle, box = cube, cylinder = quadric side + two disks, sphere = analytic sphere,
-prism = triangle mesh.
+optical axis (:mod:`.light`). Surfaces: each object's material (:mod:`.materials`: Lambertian
+``diffuse`` of its albedo, glossy plastic, rough metals, and translucent plastics as a scattering
+volume behind an index-matched surface); table = rectangle, box = cube, cylinder = quadric side
++ two disks (outward normals, so the three bound one volume), sphere = analytic sphere, prism =
+triangle mesh. Integrator: ``transient_path``; ``transient_prbvolpath`` when a scene holds a
+translucent object (media).
 
 ``max_depth`` is Mitsuba's path depth: the number of path segments leaving the camera, the last
 one ending on the light. 2 = direct only (camera → surface → light), 3 = direct + exactly one
 indirect bounce, n = up to n − 2 indirect bounces; −1 = unbounded. Russian roulette is switched
-off (``rr_depth = max_depth``), so a depth-limited render is exactly the truncated series.
+off (``rr_depth = max_depth``), so a depth-limited render is exactly the truncated series,
+unless ``rr_depth`` is given: then paths longer than it end at random (Russian roulette; the
+estimate stays unbiased), which bounds the random walks in bright translucent objects
+(:data:`DATASET_RR_DEPTH`).
 """
 
 from __future__ import annotations
@@ -53,6 +59,7 @@ from ...validation import check_array
 from ..scene import PlacedObject, Scene, Table
 from ..tof.phasor import SPEED_OF_LIGHT_MM_S, phasor_to_range
 from .light import SpotLight
+from .materials import has_medium, interior_medium, surface_bsdf
 
 #: Mitsuba variant: CPU (LLVM JIT), one spectral channel
 VARIANT = "llvm_ad_mono"
@@ -60,6 +67,8 @@ VARIANT = "llvm_ad_mono"
 DIRECT_ONLY = 2
 #: ``max_depth`` for direct light plus exactly one indirect bounce
 ONE_BOUNCE = 3
+#: Russian roulette from this path depth on in path-traced datasets (all bounces, unbiased)
+DATASET_RR_DEPTH = 64
 #: where to look for the LLVM library when DRJIT_LIBLLVM_PATH is unset: drjit's own search
 #: paths (Debian's multiarch folders) and versioned LLVM trees
 _LLVM_GLOBS = ("/usr/lib/x86_64-linux-gnu/libLLVM*.so*", "/usr/lib/aarch64-linux-gnu/libLLVM*.so*",
@@ -190,8 +199,18 @@ def _transform(mi: Any, matrix: np.ndarray) -> Any:
     return mi.ScalarTransform4f(np.asarray(matrix, dtype=np.float64).tolist())
 
 
-def _diffuse(albedo: float) -> dict[str, Any]:
-    return {"type": "diffuse", "reflectance": {"type": "uniform", "value": float(albedo)}}
+def _appearance(mi: Any, spec: Any, *, loaded: bool = False) -> dict[str, Any]:
+    """``{"bsdf": ..., ["interior": ...]}`` of an object spec (dicts, or loaded objects)."""
+    out: dict[str, Any] = {"bsdf": surface_bsdf(spec.material_id, spec.albedo)}
+    medium = interior_medium(spec.material_id, spec.albedo)
+    if medium is not None:
+        out["interior"] = medium
+    return {k: mi.load_dict(v) for k, v in out.items()} if loaded else out
+
+
+def scene_has_media(scene: Scene) -> bool:
+    """True when an object of ``scene`` is rendered as a scattering volume (translucent)."""
+    return any(has_medium(o.spec.material_id) for o in scene.objects)
 
 
 def _object_matrix(obj: PlacedObject) -> np.ndarray:
@@ -215,7 +234,8 @@ def _prism_mesh(mi: Any, obj: PlacedObject, name: str) -> Any:
         if np.dot(np.cross(b - a, c - a), (a + b + c) / 3.0 - centre) < 0.0:
             f[[1, 2]] = f[[2, 1]]
     props = mi.Properties()
-    props["bsdf"] = mi.load_dict(_diffuse(obj.spec.albedo))
+    for key, value in _appearance(mi, obj.spec, loaded=True).items():
+        props[key] = value
     mesh = mi.Mesh(name, len(verts), len(faces), props)
     params = mi.traverse(mesh)
     params["vertex_positions"] = mi.Float(verts.astype(np.float32).ravel())
@@ -228,14 +248,14 @@ def _object_shapes(mi: Any, obj: PlacedObject) -> dict[str, Any]:
     """Mitsuba shapes (dict entries) of one placed object, base frame, mm."""
     key = f"object_{obj.scene_index}"
     spec = obj.spec
-    bsdf = _diffuse(spec.albedo)
+    look = _appearance(mi, spec)
     if spec.kind == "box":
         sx, sy, sz = spec.dims_mm
         scale = np.diag([sx / 2.0, sy / 2.0, sz / 2.0, 1.0])
         lift = np.eye(4)
         lift[2, 3] = sz / 2.0
         matrix = _object_matrix(obj) @ lift @ scale
-        return {key: {"type": "cube", "to_world": _transform(mi, matrix), "bsdf": bsdf}}
+        return {key: {"type": "cube", "to_world": _transform(mi, matrix), **look}}
     if spec.kind == "cylinder":
         r, h = spec.dims_mm[0] / 2.0, spec.dims_mm[2]
         base = np.array([obj.x_mm, obj.y_mm, obj.z_mm])
@@ -245,14 +265,14 @@ def _object_shapes(mi: Any, obj: PlacedObject) -> dict[str, Any]:
         bottom_cap = np.diag([r, -r, -1.0, 1.0])  # turned over: its normal points down
         bottom_cap[:3, 3] = base
         return {f"{key}_side": {"type": "cylinder", "p0": base.tolist(),
-                                "p1": top.tolist(), "radius": r, "bsdf": bsdf},
-                f"{key}_top": {"type": "disk", "to_world": _transform(mi, top_cap), "bsdf": bsdf},
+                                "p1": top.tolist(), "radius": r, **look},
+                f"{key}_top": {"type": "disk", "to_world": _transform(mi, top_cap), **look},
                 f"{key}_bottom": {"type": "disk", "to_world": _transform(mi, bottom_cap),
-                                  "bsdf": bsdf}}
+                                  **look}}
     if spec.kind == "sphere":
         r = spec.dims_mm[0] / 2.0
         return {key: {"type": "sphere", "center": [obj.x_mm, obj.y_mm, obj.z_mm + r],
-                      "radius": r, "bsdf": bsdf}}
+                      "radius": r, **look}}
     return {key: _prism_mesh(mi, obj, key)}
 
 
@@ -282,8 +302,8 @@ def scene_to_mitsuba(scene: Scene, camera_to_base_mm: np.ndarray, intrinsics: In
     Returns:
         A dict for ``mitsuba.load_dict`` (loads mitsuba): scene units mm, the ``tof_pinhole``
         sensor with a ``phasor_hdr_film`` (box pixel filter, independent sampler), a ``spot``
-        emitter, and one Lambertian shape per surface. It holds Mitsuba objects (transforms,
-        meshes), so it is not JSON.
+        emitter, and shapes with each object's material (:mod:`.materials`). It holds Mitsuba
+        objects (transforms, meshes), so it is not JSON.
 
     Raises:
         InputError: malformed pose.
@@ -309,7 +329,7 @@ def scene_to_mitsuba(scene: Scene, camera_to_base_mm: np.ndarray, intrinsics: In
                   "cutoff_angle": float(spot.cone_half_angle_deg),
                   "beam_width": float(spot.beam_width_deg)},
         "table": {"type": "rectangle", "to_world": _transform(mi, table_matrix),
-                  "bsdf": _diffuse(table.albedo)},
+                  "bsdf": surface_bsdf(table.material_id, table.albedo)},
     }
     for obj in scene.objects:
         out.update(_object_shapes(mi, obj))
@@ -324,15 +344,18 @@ class _Loaded:
 
 
 def _load(scene: Scene, pose: np.ndarray, intrinsics: Intrinsics, light: SpotLight,
-          mod_freq_hz: float, max_depth: int) -> _Loaded:
+          mod_freq_hz: float, max_depth: int, rr_depth: int | None) -> _Loaded:
     mi = load_mitsuba()
     if not (max_depth == -1 or max_depth >= 1):
         raise SimulationError(f"max_depth must be -1 (unbounded) or >= 1, got {max_depth}")
+    if rr_depth is not None and rr_depth < 1:
+        raise SimulationError(f"rr_depth must be >= 1 or None, got {rr_depth}")
     mscene = mi.load_dict(scene_to_mitsuba(scene, pose, intrinsics, light=light,
                                            mod_freq_hz=mod_freq_hz))
-    # no Russian roulette: a depth-limited render is exactly the truncated series
-    rr_depth = max_depth if max_depth > 0 else 1 << 20
-    integrator = mi.load_dict({"type": "transient_path", "max_depth": int(max_depth),
+    if rr_depth is None:  # no Russian roulette: a depth-limited render is the truncated series
+        rr_depth = max_depth if max_depth > 0 else 1 << 20
+    kind = "transient_prbvolpath" if scene_has_media(scene) else "transient_path"
+    integrator = mi.load_dict({"type": kind, "max_depth": int(max_depth),
                                "rr_depth": int(rr_depth)})
     freqs = np.array([float(f[0]) if np.ndim(f) else float(f)
                       for f in mscene.sensors()[0].film().frequencies])
@@ -347,7 +370,7 @@ def _load(scene: Scene, pose: np.ndarray, intrinsics: Intrinsics, light: SpotLig
 def render_phasor_passes(scene: Scene, camera_to_base_mm: np.ndarray, intrinsics: Intrinsics, *,
                          mod_freq_hz: float, spp: int, max_depth: int, seed: int,
                          light: SpotLight | None = None,
-                         spp_per_pass: int = 64) -> np.ndarray:
+                         spp_per_pass: int = 64, rr_depth: int | None = None) -> np.ndarray:
     """Independent partial renders of :func:`render_phasor` (their mean is the phasor).
 
     Args:
@@ -356,6 +379,8 @@ def render_phasor_passes(scene: Scene, camera_to_base_mm: np.ndarray, intrinsics
         spp: total samples per pixel, a multiple of ``spp_per_pass``.
         seed: base seed; pass k uses the Mitsuba seed ``seed · 2^16 + k`` (seeds < 2^16).
         spp_per_pass: samples per pixel of each pass (memory grows with it).
+        rr_depth: Russian roulette from this path depth on (None: none, see the module
+            docstring).
 
     Returns:
         (P, H, W) complex128 phasors of the P = spp / spp_per_pass passes, simulator amplitude
@@ -372,7 +397,7 @@ def render_phasor_passes(scene: Scene, camera_to_base_mm: np.ndarray, intrinsics
     pose = check_array("camera_to_base_mm", camera_to_base_mm, ndim=2, shape=(4, 4),
                        dtype_kind="fiu").astype(np.float64)
     spot = light if light is not None else SpotLight()
-    loaded = _load(scene, pose, intrinsics, spot, mod_freq_hz, max_depth)
+    loaded = _load(scene, pose, intrinsics, spot, mod_freq_hz, max_depth, rr_depth)
     passes = spp // spp_per_pass
     out = np.empty((passes, intrinsics.height, intrinsics.width), dtype=np.complex128)
     for k in range(passes):
@@ -386,7 +411,8 @@ def render_phasor_passes(scene: Scene, camera_to_base_mm: np.ndarray, intrinsics
 
 def render_phasor(scene: Scene, camera_to_base_mm: np.ndarray, intrinsics: Intrinsics, *,
                   mod_freq_hz: float, spp: int, max_depth: int, seed: int,
-                  light: SpotLight | None = None, spp_per_pass: int = 64) -> np.ndarray:
+                  light: SpotLight | None = None, spp_per_pass: int = 64,
+                  rr_depth: int | None = None) -> np.ndarray:
     """Path-traced AMCW phasor of every pixel (no noise model, no systematic errors).
 
     Args:
@@ -402,6 +428,8 @@ def render_phasor(scene: Scene, camera_to_base_mm: np.ndarray, intrinsics: Intri
         light: the co-located spot light (default :class:`SpotLight`).
         spp_per_pass: samples per pixel per Mitsuba render call (bounds memory; passes are
             accumulated in float64).
+        rr_depth: Russian roulette from this path depth on; None (default) = none, so a
+            depth-limited render is exactly the truncated series.
 
     Returns:
         (H, W) complex128 phasor ``Σ a · e^{+i 2π f L / c}`` over the pixel's paths (L: path
@@ -410,7 +438,7 @@ def render_phasor(scene: Scene, camera_to_base_mm: np.ndarray, intrinsics: Intri
     """
     return render_phasor_passes(scene, camera_to_base_mm, intrinsics, mod_freq_hz=mod_freq_hz,
                                 spp=spp, max_depth=max_depth, seed=seed, light=light,
-                                spp_per_pass=spp_per_pass).mean(axis=0)
+                                spp_per_pass=spp_per_pass, rr_depth=rr_depth).mean(axis=0)
 
 
 def phasor_range_amplitude(phasor: np.ndarray, mod_freq_hz: float, *,
