@@ -11,7 +11,12 @@ from tof_mpd_ros.correction import edges
 from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig, encode_frame
 from tof_mpd_ros.errors import InputError
-from tof_mpd_ros.training.samples import auto_encoding, prepare_training_data, sample_pixels
+from tof_mpd_ros.training.samples import (
+    auto_encoding,
+    distortion_clip_mm,
+    prepare_training_data,
+    sample_pixels,
+)
 
 H, W = 40, 48
 
@@ -86,3 +91,22 @@ def test_auto_bins_span_the_data(frames, calib) -> None:
     ranges = np.stack([calib.apply(f.range_mm, f.amplitude) for f in frames])
     assert np.nanmin(ranges) <= enc.range_min_mm + 5 and enc.range_max_mm <= np.nanmax(ranges)
     assert 0 < enc.amplitude_min < enc.amplitude_max
+
+
+def test_data_driven_truncation_follows_the_distortion(frames, calib) -> None:
+    """T = the 99th percentile of |R* − R|, never under the paper's 15 mm; the targets are
+    clipped at it and the model learns to output up to it."""
+    rng = np.random.default_rng(1)
+    d = np.concatenate([rng.uniform(-40.0, 40.0, 9950), np.full(50, 500.0)])  # flying pixels
+    calibrated = np.zeros_like(d)
+    t = distortion_clip_mm(calibrated, d)
+    assert 39.0 <= t <= 41.0   # the quantile of |U(-40, 40)| ∪ outliers, rounded up
+    assert distortion_clip_mm(calibrated[:9950], 0.1 * d[:9950]) == 15.0  # small: the paper's
+    assert distortion_clip_mm(calibrated[:4], np.full(4, np.nan)) == 15.0  # nothing to go by
+    data = prepare_training_data(frames, calib, EncodingConfig(), target_clip_mm=None)
+    ranges = np.stack([calib.apply(f.range_mm, f.amplitude) for f in frames])
+    ref = np.stack([f.reference_mm for f in frames])
+    usable = data.usable.numpy()
+    expected = distortion_clip_mm(ranges[usable], ref[usable])
+    assert data.target_clip_mm == expected
+    assert float(np.nanmax(np.abs(data.target.numpy()))) <= expected

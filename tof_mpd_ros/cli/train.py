@@ -29,11 +29,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--max-samples-per-frame", type=int, default=4000,
                        help="pixels drawn afresh per frame and epoch (default 4000; 0 = every "
                             "usable pixel, the paper's ~10 M patches at MD scale)")
+    train.add_argument("--target-clip-mm", type=_clip_arg, default=15.0, metavar="MM|auto",
+                       help="truncation T of F's target (default 15, the paper's); 'auto' = "
+                            "the training data's 99th percentile of |distortion|, at least 15")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--checkpoint-dir", type=Path, help="checkpoint after every epoch; "
                        "an interrupted run resumes from it")
     train.add_argument("--overwrite", action="store_true", help="replace an existing output")
     train.set_defaults(func=run_train)
+
+
+def _clip_arg(text: str) -> float | None:
+    """``auto`` -> None (from the data), else a positive number of mm."""
+    if text == "auto":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected a number of mm or 'auto', got {text!r}") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+    return value
 
 
 def load_training_frames(paths: list[Path]) -> list:
@@ -55,7 +72,8 @@ def run_train(args: argparse.Namespace) -> int:
                    else fit_from_file(args.calibration_captures)[0])
     frames = load_training_frames(args.recordings)
     config = TrainConfig(epochs=args.epochs, batch_size=args.batch_size,
-                         max_samples_per_frame=args.max_samples_per_frame or None)
+                         max_samples_per_frame=args.max_samples_per_frame or None,
+                         target_clip_mm=args.target_clip_mm)
     _, history = train(frames, calibration, config, seed=args.seed,
                        checkpoint_dir=args.checkpoint_dir, weights_path=args.output,
                        overwrite=args.overwrite)

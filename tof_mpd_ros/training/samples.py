@@ -21,6 +21,7 @@ pixels, at most ``max_per_frame`` (None = all of them, the paper's setting), dra
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -32,6 +33,11 @@ from ..correction.calibration import IntrinsicCalibration
 from ..correction.encoding import EncodingConfig, encode_patches, prepare_planes
 from ..errors import InputError
 from ..frame import ToFFrame
+
+#: the paper's truncation of the F target, mm (the floor of the data-driven one)
+PAPER_TARGET_CLIP_MM = 15.0
+#: the data-driven truncation covers this quantile of the training set's |distortion|
+TARGET_CLIP_QUANTILE = 0.99
 
 
 @dataclass
@@ -51,6 +57,7 @@ class TrainingData:
         reference: (N, H, W) float32 reference range R* in mm (NaN = missing).
         encoding: the encoding constants.
         digest: SHA-256 of the raw frames and the calibration (provenance, checkpoint check).
+        target_clip_mm: T, the truncation applied to ``target``, mm.
     """
 
     range_planes: torch.Tensor
@@ -63,6 +70,7 @@ class TrainingData:
     reference: torch.Tensor
     encoding: EncodingConfig
     digest: str
+    target_clip_mm: float = PAPER_TARGET_CLIP_MM
 
     @property
     def n_frames(self) -> int:
@@ -120,8 +128,32 @@ def check_training_frames(frames: Sequence[ToFFrame], shape: tuple[int, int]) ->
                              f"{tuple(shape)}; crop the frames to the calibration's crop")
 
 
+def distortion_clip_mm(calibrated: np.ndarray, reference: np.ndarray, *,
+                       quantile: float = TARGET_CLIP_QUANTILE,
+                       floor_mm: float = PAPER_TARGET_CLIP_MM) -> float:
+    """The F target's truncation T from the data: the ``quantile`` of |R* − R| over the pixels
+    with both values, never below ``floor_mm`` (the paper's 15 mm), rounded up to a whole mm.
+
+    The paper truncates at 15 mm, which its DS325 data rarely exceeded away from edges; a
+    path-traced or bright scene puts 10 % of the interior pixels beyond it (box faces +30 mm),
+    and a truncated target cannot correct them. Flying pixels and outliers past the quantile
+    stay truncated.
+
+    Args:
+        calibrated: (N, H, W) float calibrated ToF range, mm.
+        reference: (N, H, W) float reference range, mm (NaN = missing).
+    """
+    with np.errstate(invalid="ignore"):
+        d = np.abs(np.asarray(reference, np.float64) - np.asarray(calibrated, np.float64))
+    d = d[np.isfinite(d)]
+    if d.size == 0:
+        return float(floor_mm)
+    return float(max(floor_mm, math.ceil(float(np.quantile(d, quantile)))))
+
+
 def prepare_training_data(frames: Sequence[ToFFrame], calibration: IntrinsicCalibration,
-                          encoding: EncodingConfig, *, target_clip_mm: float = 15.0
+                          encoding: EncodingConfig, *,
+                          target_clip_mm: float | None = PAPER_TARGET_CLIP_MM
                           ) -> TrainingData:
     """Calibrate the frames, compute targets and ground-truth edge labels.
 
@@ -129,7 +161,9 @@ def prepare_training_data(frames: Sequence[ToFFrame], calibration: IntrinsicCali
         frames: ToF frames with ``reference_mm`` (NaN = missing), all of the calibration's (H, W).
         calibration: applied to every frame first (as at inference).
         encoding: patch encoding constants.
-        target_clip_mm: T, the truncation of the F target.
+        target_clip_mm: T, the truncation of the F target; None = from the data
+            (:func:`distortion_clip_mm` over the usable pixels), stored in
+            ``TrainingData.target_clip_mm`` either way.
 
     Returns:
         The prepared :class:`TrainingData`.
@@ -146,6 +180,8 @@ def prepare_training_data(frames: Sequence[ToFFrame], calibration: IntrinsicCali
     calibrated = calibration.apply(rng_, amp)
     r_t, la_t, valid = prepare_planes(torch.from_numpy(calibrated), torch.from_numpy(amp))
     usable = valid & torch.from_numpy(np.isfinite(ref))
+    if target_clip_mm is None:
+        target_clip_mm = distortion_clip_mm(calibrated[usable.numpy()], ref[usable.numpy()])
     with np.errstate(invalid="ignore"):
         t = np.clip(ref - calibrated, -target_clip_mm, target_clip_mm)
     target = torch.where(usable, torch.from_numpy(t.astype(np.float32)), float("nan"))
@@ -158,7 +194,8 @@ def prepare_training_data(frames: Sequence[ToFFrame], calibration: IntrinsicCali
         log_amp_planes=tnf.pad(la_t[:, None], pad, value=float("nan"))[:, 0].contiguous(),
         amplitude=torch.from_numpy(amp), target=target, group=group, usable=usable,
         calibrated=torch.from_numpy(calibrated), reference=torch.from_numpy(ref),
-        encoding=encoding, digest=frames_digest(frames, calibration))
+        encoding=encoding, digest=frames_digest(frames, calibration),
+        target_clip_mm=float(target_clip_mm))
 
 
 def sample_pixels(data: TrainingData, frame_ids: Sequence[int], max_per_frame: int | None,

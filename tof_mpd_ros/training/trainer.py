@@ -57,7 +57,13 @@ from ..correction.pipeline import CorrectionModel, GeodesicParams
 from ..correction.weights import save_weights
 from ..errors import CalibrationError, InputError, WeightsError
 from ..frame import ToFFrame
-from .samples import TrainingData, auto_encoding, prepare_training_data, sample_pixels
+from .samples import (
+    PAPER_TARGET_CLIP_MM,
+    TrainingData,
+    auto_encoding,
+    prepare_training_data,
+    sample_pixels,
+)
 
 log = logging.getLogger(__name__)
 
@@ -75,7 +81,9 @@ class TrainConfig:
         lr_range, lr_boundary: learning rates of F and of the G heads.
         momentum: SGD momentum.
         weight_decay: L2 penalty of both networks.
-        target_clip_mm: T, truncation of the F target (paper: 15 mm).
+        target_clip_mm: T, truncation of the F target (paper: 15 mm); None = from the
+            training data's distortion (:func:`.samples.distortion_clip_mm`: its 99th
+            percentile, at least 15 mm).
         max_samples_per_frame: pixels drawn per training frame and epoch, a new draw each
             epoch (default 4000: MD-scale training in ~10-15 min of CPU on 2 cores, see the
             module docstring for the accuracy check; None = every usable pixel, the paper's
@@ -100,7 +108,7 @@ class TrainConfig:
     lr_boundary: float = 0.05
     momentum: float = 0.9
     weight_decay: float = 0.0
-    target_clip_mm: float = 15.0
+    target_clip_mm: float | None = PAPER_TARGET_CLIP_MM
     max_samples_per_frame: int | None = 4000
     val_fraction: float = 0.1
     val_samples_per_frame: int | None = 4000
@@ -251,7 +259,7 @@ def _run_epoch(nets: _Nets, opt: torch.optim.Optimizer, data: TrainingData, trai
         for b0 in range(0, feats.shape[0], cfg.batch_size):
             sl = slice(b0, b0 + cfg.batch_size)
             loss_f, loss_g = _losses(nets, feats[sl], target[sl], group[sl], weights,
-                                     cfg.target_clip_mm)
+                                     data.target_clip_mm)
             opt.zero_grad(set_to_none=True)
             (loss_f + loss_g).backward()
             opt.step()
@@ -285,7 +293,7 @@ def _validate(nets: _Nets, data: TrainingData, flat: torch.Tensor, weights: torc
         ref = data.reference.reshape(-1)[idx]
         err_before.append(r - ref)
         err_after.append(r + nets.range_net(feats) - ref)
-        _, lg = _losses(nets, feats, target, group, weights, cfg.target_clip_mm)
+        _, lg = _losses(nets, feats, target, group, weights, data.target_clip_mm)
         loss_g += float(lg) * idx.numel()
         fires = nets.boundary_nets.probabilities(feats) > 0.5                 # (M, 4)
         on_edge = group >= 0
@@ -392,7 +400,8 @@ def train(
     data = prepare_training_data(frames, calibration, enc, target_clip_mm=cfg.target_clip_mm)
     train_ids, val_ids = split_frames(data.n_frames, cfg.val_fraction, seed, groups)
     model = CorrectionModel.untrained(calibration, enc, seed=seed, geodesic=geodesic)
-    model.range_net.target_clip_mm = cfg.target_clip_mm
+    model.range_net.target_clip_mm = data.target_clip_mm
+    log.info("F target truncated at +-%.0f mm", data.target_clip_mm)
     nets = _Nets(model)
     opt = torch.optim.SGD(
         [{"params": nets.range_net.parameters(), "lr": cfg.lr_range},
@@ -432,6 +441,7 @@ def train(
     nets.eval()
     model.metadata = {"training_data_digest": data.digest, "seed": seed,
                       "train_config": asdict(cfg), "n_frames": data.n_frames,
+                      "target_clip_mm": data.target_clip_mm,
                       "train_frames": len(train_ids), "val_frames": val_ids,
                       "final": history[-1] if history else {}}
     if weights_path is not None:
