@@ -70,6 +70,10 @@ def test_calibrate_train_correct_evaluate(files: dict[str, Path],
     results = json.loads((d / "eval" / "results.json").read_text())
     assert set(results["stages"]) == {"raw", "calibrated", "F", "geodesic+G", "full"}
     assert (d / "eval" / "index.html").is_file()
+    # the regions by distance to the edges split the whole image's scored pixels
+    whole = results["stages"]["full"]["whole"]["n_pixels"]
+    assert sum(r["full"]["pixels"] for r in results["regions"].values()) == whole
+    assert 0.0 <= results["g_operating_point"]["precision"] <= 1.0
     # Calibration removes the simulated systematic error on these scenes.
     summary = results["summary_5mm"]
     assert summary["calibrated"]["whole"] > summary["raw"]["whole"]

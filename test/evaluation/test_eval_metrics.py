@@ -101,3 +101,22 @@ def test_edge_precision_recall_pools_frames_and_respects_valid():
     c = edge_precision_recall([perfect, np.zeros((10, 10))], [gt, gt], [0.5],
                               valid=[valid, valid])
     assert c.n_gt == 10 and c.precision == (1.0,) and c.recall == (0.5,)
+
+
+def test_region_accuracy_splits_by_distance_to_the_edges() -> None:
+    """A step edge at column 20: the estimate is 10 mm off within 2 px of it and exact
+    elsewhere, so the edge region is 0 % within 5 mm and the others 100 %."""
+    from tof_mpd_ros.evaluation.components import REGIONS, region_accuracy
+
+    ref = np.full((30, 40), 500.0)
+    gt = np.zeros(ref.shape, bool)
+    gt[:, 20] = True
+    est = ref.copy()
+    cols = np.abs(np.arange(40) - 20)
+    est[:, cols <= 2] += 10.0
+    out = region_accuracy({"F": [est]}, [ref], [gt])
+    assert list(out) == [name for name, _, _ in REGIONS]
+    edge, near, interior = (out[name]["F"] for name, _, _ in REGIONS)
+    assert edge["within"] == 0.0 and edge["mae_mm"] == 10.0 and edge["pixels"] == 30 * 5
+    assert near["within"] == 1.0 and near["pixels"] == 30 * 6
+    assert interior["within"] == 1.0 and interior["pixels"] == 30 * 40 - 30 * 11

@@ -24,7 +24,9 @@ from ..frame import ToFFrame
 from .metrics import (
     DEFAULT_THRESHOLDS_MM,
     EdgePRCurve,
+    FrameAccumulator,
     FrameEvaluation,
+    _distance_to,
     boundary_region,
     edge_precision_recall,
     evaluate_frames,
@@ -33,6 +35,9 @@ from .metrics import (
 STAGES = ("raw", "calibrated", "F", "geodesic+G", "full")
 G_THRESHOLDS = tuple(np.round(np.linspace(0.05, 0.95, 19), 3))
 CANNY_HIGHS_MM = tuple(float(t) for t in np.geomspace(2.0, 80.0, 19))
+#: regions by distance (px) to the nearest ground-truth edge: (name, lower, upper], inclusive
+REGIONS = (("edge (<= 2 px)", -1.0, 2.0), ("near edge (2-5 px)", 2.0, 5.0),
+           ("interior (> 5 px)", 5.0, np.inf))
 
 
 @dataclass
@@ -44,6 +49,11 @@ class ComponentEvaluation:
         edges: precision/recall curves of ``G`` and ``Canny`` (raw ToF).
         seconds_per_frame: median wall time of the full correction per frame.
         examples: a few frames' arrays for plots (reference, raw and each stage).
+        regions: per region by distance to the ground-truth edges (:data:`REGIONS`), per
+            stage: fraction within 5 mm, MAE (mm) and pixel count — what F and the geodesic
+            step do at the edges, near them and in the interior.
+        g_operating_point: precision / recall (2 px tolerance) of the binary edge map the
+            full pipeline uses (G's thresholds and hysteresis), not a sweep.
     """
 
     stages: dict[str, FrameEvaluation]
@@ -51,6 +61,8 @@ class ComponentEvaluation:
     seconds_per_frame: float
     n_frames: int
     examples: list[dict[str, np.ndarray]] = field(default_factory=list)
+    regions: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
+    g_operating_point: dict[str, float] = field(default_factory=dict)
 
     def summary(self, threshold_mm: float = 5.0) -> dict[str, dict[str, float]]:
         """Per stage: fraction within ``threshold_mm`` (whole, boundary), MAE, RMSE."""
@@ -68,7 +80,8 @@ class ComponentEvaluation:
                 "summary_5mm": self.summary(5.0),
                 "relative_improvement_5mm": (full5 - raw5) / raw5 if raw5 > 0 else None,
                 "stages": {k: v.to_dict() for k, v in self.stages.items()},
-                "edges": {k: v.to_dict() for k, v in self.edges.items()}}
+                "edges": {k: v.to_dict() for k, v in self.edges.items()},
+                "regions": self.regions, "g_operating_point": self.g_operating_point}
 
 
 def g_edge_strength(model: CorrectionModel, calibrated_mm: np.ndarray,
@@ -99,6 +112,7 @@ def evaluate_model(model: CorrectionModel, frames: Iterable[ToFFrame], *,
     """
     estimates: dict[str, list[np.ndarray]] = {s: [] for s in STAGES}
     references, masks, g_scores, canny_scores, gts, valids = [], [], [], [], [], []
+    g_maps: list[np.ndarray] = []
     examples: list[dict[str, np.ndarray]] = []
     seconds: list[float] = []
     for frame in frames:
@@ -116,6 +130,7 @@ def evaluate_model(model: CorrectionModel, frames: Iterable[ToFFrame], *,
         references.append(frame.reference_mm)
         masks.append(boundary_region(frame.reference_mm, edges=gt))
         gts.append(gt)
+        g_maps.append(full.edges)
         valids.append(np.isfinite(frame.reference_mm))
         g_scores.append(g_edge_strength(model, full.calibrated_mm, frame.amplitude))
         canny_scores.append(canny_score_map(frame.range_mm, highs=np.array(CANNY_HIGHS_MM)))
@@ -128,4 +143,36 @@ def evaluate_model(model: CorrectionModel, frames: Iterable[ToFFrame], *,
              "Canny (raw ToF)": edge_precision_recall(canny_scores, gts, CANNY_HIGHS_MM,
                                                       valid=valids)}
     median = float(np.median(seconds)) if seconds else float("nan")
-    return ComponentEvaluation(stages, edges, median, len(references), examples)
+    regions = region_accuracy(estimates, references, gts)
+    point = edge_precision_recall([m.astype(np.float32) for m in g_maps], gts, [0.5],
+                                  valid=valids) if g_maps else None
+    operating = {} if point is None else {"precision": float(point.precision[0]),
+                                          "recall": float(point.recall[0])}
+    return ComponentEvaluation(stages, edges, median, len(references), examples, regions,
+                               operating)
+
+
+def region_accuracy(estimates: dict[str, list[np.ndarray]], references: list[np.ndarray],
+                    gt_edges: list[np.ndarray], threshold_mm: float = 5.0
+                    ) -> dict[str, dict[str, dict[str, float]]]:
+    """Per region (:data:`REGIONS`) and stage: fraction of the scored pixels within
+    ``threshold_mm``, MAE (mm) and the number of pixels.
+
+    Args:
+        estimates: stage -> N (H, W) float range estimates, mm (NaN = no estimate: an error).
+        references: N (H, W) float references, mm (NaN = not scored).
+        gt_edges: N (H, W) bool ground-truth edges.
+    """
+    dist = [_distance_to(g.astype(bool)) for g in gt_edges]
+    out: dict[str, dict[str, dict[str, float]]] = {}
+    for name, lo, hi in REGIONS:
+        out[name] = {}
+        for stage, est in estimates.items():
+            # the accumulator's "boundary" pool takes any mask: here the region's
+            acc = FrameAccumulator((threshold_mm,))
+            for e, r, d in zip(est, references, dist, strict=True):
+                acc.add(e, r, (d > lo) & (d <= hi))
+            curve = acc.result().boundary
+            out[name][stage] = {"within": curve.accuracy[0], "mae_mm": curve.mae_mm,
+                                "pixels": curve.n_pixels}
+    return out
