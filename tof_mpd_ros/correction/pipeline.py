@@ -71,16 +71,22 @@ BAND_PIXELS = 1440
 
 @dataclass(frozen=True)
 class GeodesicParams:
-    """Geodesic filter constants (paper: K = 81 neighbours, sigma = 2, unit grid step)."""
+    """Geodesic filter constants (paper: K = 81 neighbours, sigma = 2, unit grid step) and the
+    hysteresis thresholds that turn G's probabilities into the edge map it respects (0.3 /
+    0.6 by default; the trainer chooses them on its validation frames)."""
 
     k: int = 81
     sigma: float = 2.0
     step: float = 1.0
+    edge_low: float = 0.3
+    edge_high: float = 0.6
 
     def __post_init__(self) -> None:
         if not (self.k >= 1 and self.sigma > 0 and self.step > 0):
             raise InputError(f"geodesic parameters must be k >= 1, sigma > 0, step > 0, "
                              f"got {self}")
+        if not 0.0 <= self.edge_low <= self.edge_high:
+            raise InputError(f"edge thresholds must be 0 <= low <= high, got {self}")
 
 
 @dataclass
@@ -425,7 +431,8 @@ def _filter_from_best(params: GeodesicParams, range_f: np.ndarray, best: np.ndar
     from . import edges as edge_module
     from . import geodesic
 
-    edge_map, _strength = edge_module.edge_map_from_best(best, group)
+    edge_map, _strength = edge_module.edge_map_from_best(best, group, low=params.edge_low,
+                                                         high=params.edge_high)
     filtered = geodesic.geodesic_filter(range_f, edge_map, k=params.k, sigma=params.sigma,
                                         step=params.step)
     return np.asarray(edge_map, bool), np.asarray(filtered, np.float32)
@@ -438,7 +445,8 @@ def _filter_one(params: GeodesicParams, range_f: np.ndarray, probs: np.ndarray
     from . import edges as edge_module
     from . import geodesic
 
-    edge_map, _strength = edge_module.edge_map_from_responses(probs)
+    edge_map, _strength = edge_module.edge_map_from_responses(probs, low=params.edge_low,
+                                                              high=params.edge_high)
     filtered = geodesic.geodesic_filter(range_f, edge_map, k=params.k, sigma=params.sigma,
                                         step=params.step)
     return np.asarray(edge_map, bool), np.asarray(filtered, np.float32)

@@ -439,8 +439,8 @@ def reference_correct(model: CorrectionModel, range_mm: np.ndarray, amplitude: n
     probs = reference_boundary_nets(weights, feats)                      # (H*W, 4)
     scores = np.where(valid, probs.T.reshape(-1, h, w), np.float32(0.0)).astype(np.float32)
     confidence = np.where(valid, 1.0 - scores.max(axis=0), 0.0).astype(np.float32)
-    edges, _ = edge_map_from_responses(scores)
     g = model.geodesic
+    edges, _ = edge_map_from_responses(scores, low=g.edge_low, high=g.edge_high)
     filtered = reference_geodesic_filter(range_f, edges, k=g.k, sigma=g.sigma, step=g.step)
     final = np.where(valid, filtered, np.float32(np.nan)).astype(np.float32)
     return CorrectionResult(final, edges, confidence, calib, range_f, valid)

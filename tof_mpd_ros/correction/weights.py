@@ -16,6 +16,7 @@ saying what was expected and what was found.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime as dt
 import hashlib
 import json
@@ -103,8 +104,7 @@ def save_weights(path: str | os.PathLike[str], model: CorrectionModel, *,
     meta = {"format": FORMAT, "format_version": FORMAT_VERSION,
             "crop": {"width": w, "height": h}, "architecture": architecture(model),
             "encoding": model.encoding.as_dict(),
-            "geodesic": {"k": model.geodesic.k, "sigma": model.geodesic.sigma,
-                         "step": model.geodesic.step},
+            "geodesic": dataclasses.asdict(model.geodesic),
             "package_version": __version__, "code_revision": code_revision(),
             "training_data_digest": training_data_digest
             or str(model.metadata.get("training_data_digest", "")),

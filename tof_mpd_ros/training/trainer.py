@@ -57,6 +57,7 @@ from ..correction.pipeline import CorrectionModel, GeodesicParams
 from ..correction.weights import save_weights
 from ..errors import CalibrationError, InputError, WeightsError
 from ..frame import ToFFrame
+from .edge_thresholds import choose_edge_thresholds, with_thresholds
 from .samples import (
     PAPER_TARGET_CLIP_MM,
     TrainingData,
@@ -100,6 +101,9 @@ class TrainConfig:
         num_threads: torch intra-op threads while training (restored afterwards); None = leave
             as is. Batch-500 GEMMs gain little from more threads, so 1 thread for SGD plus the
             prefetch thread is the best use of a 2-core machine.
+        tune_edge_thresholds: after training, choose G's hysteresis thresholds on the
+            validation frames by the full pipeline's accuracy in the boundary region
+            (:mod:`.edge_thresholds`); False = the paper's 0.3 / 0.6.
     """
 
     epochs: int = 40
@@ -118,6 +122,7 @@ class TrainConfig:
     chunk_batches: int = 40
     prefetch: bool = True
     num_threads: int | None = 1
+    tune_edge_thresholds: bool = True
 
     def __post_init__(self) -> None:
         if self.epochs < 1 or self.batch_size < 1 or self.chunk_batches < 1:
@@ -315,7 +320,8 @@ def _fingerprint(cfg: TrainConfig, seed: int, data: TrainingData, val_ids: list[
     depends on it (no schedule), so a finished run can be extended by asking for more epochs;
     ``chunk_batches``, ``prefetch`` and ``num_threads`` change speed, not the maths."""
     settings = {k: v for k, v in asdict(cfg).items()
-                if k not in ("epochs", "chunk_batches", "prefetch", "num_threads")}
+                if k not in ("epochs", "chunk_batches", "prefetch", "num_threads",
+                             "tune_edge_thresholds")}
     return json.dumps({"config": settings, "seed": seed, "data": data.digest, "val": val_ids,
                        "encoding": data.encoding.as_dict()}, sort_keys=True)
 
@@ -439,11 +445,21 @@ def train(
     finally:
         torch.set_num_threads(threads)
     nets.eval()
+    edge_choice = None
+    if cfg.tune_edge_thresholds and val_ids:
+        edge_choice = choose_edge_thresholds(model, [frames[i] for i in val_ids])
+        if edge_choice is not None:
+            with_thresholds(model, edge_choice)
+            log.info("G edge thresholds %.2f / %.2f: boundary within 5 mm %.3f (0.3 / 0.6: "
+                     "%.3f, F alone: %.3f) on the validation frames", edge_choice.low,
+                     edge_choice.high, max(r[2] for r in edge_choice.table),
+                     edge_choice.default[0], edge_choice.f_alone[0])
     model.metadata = {"training_data_digest": data.digest, "seed": seed,
                       "train_config": asdict(cfg), "n_frames": data.n_frames,
                       "target_clip_mm": data.target_clip_mm,
                       "train_frames": len(train_ids), "val_frames": val_ids,
-                      "final": history[-1] if history else {}}
+                      "final": history[-1] if history else {},
+                      "edge_thresholds": None if edge_choice is None else edge_choice.as_dict()}
     if weights_path is not None:
         save_weights(weights_path, model, training_data_digest=data.digest, overwrite=overwrite)
     return model, history
