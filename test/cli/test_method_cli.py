@@ -51,8 +51,12 @@ def test_calibrate_train_correct_evaluate(files: dict[str, Path],
     assert (d / "calib.json").is_file()
 
     code, out, _ = run(capsys, "train", files["train"], "--calibration", d / "calib.npz",
-                       "-o", d / "w.npz", "--epochs", "2", "--max-samples-per-frame", "500")
+                       "-o", d / "w.npz", "--epochs", "2", "--max-samples-per-frame", "500",
+                       "--target-clip-mm", "auto")
     assert code == 0 and out["epochs"] == 2 and (d / "w.npz").is_file()
+    assert out["target_clip_mm"] >= 15.0  # from the data, never under the paper's
+    chosen = out["edge_thresholds"]       # chosen on the validation frames
+    assert chosen is not None and 0.0 <= chosen["low"] <= chosen["high"] <= 1.0
     history = json.loads((d / "w.json").read_text())["history"]
     assert np.isfinite(history[-1]["loss_range"])
 

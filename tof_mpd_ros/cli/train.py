@@ -32,6 +32,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--target-clip-mm", type=_clip_arg, default=15.0, metavar="MM|auto",
                        help="truncation T of F's target (default 15, the paper's); 'auto' = "
                             "the training data's 99th percentile of |distortion|, at least 15")
+    train.add_argument("--edge-thresholds", choices=("tune", "paper"), default="tune",
+                       help="G's hysteresis thresholds: chosen on the validation frames by the "
+                            "full pipeline's boundary accuracy (default), or the paper's "
+                            "0.3 / 0.6")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--checkpoint-dir", type=Path, help="checkpoint after every epoch; "
                        "an interrupted run resumes from it")
@@ -73,12 +77,15 @@ def run_train(args: argparse.Namespace) -> int:
     frames = load_training_frames(args.recordings)
     config = TrainConfig(epochs=args.epochs, batch_size=args.batch_size,
                          max_samples_per_frame=args.max_samples_per_frame or None,
-                         target_clip_mm=args.target_clip_mm)
-    _, history = train(frames, calibration, config, seed=args.seed,
-                       checkpoint_dir=args.checkpoint_dir, weights_path=args.output,
-                       overwrite=args.overwrite)
+                         target_clip_mm=args.target_clip_mm,
+                         tune_edge_thresholds=args.edge_thresholds == "tune")
+    model, history = train(frames, calibration, config, seed=args.seed,
+                           checkpoint_dir=args.checkpoint_dir, weights_path=args.output,
+                           overwrite=args.overwrite)
     summary = {"weights": str(args.output), "frames": len(frames), "epochs": len(history),
-               "final": history[-1] if history else {}, "history": history}
+               "final": history[-1] if history else {}, "history": history,
+               "target_clip_mm": model.metadata.get("target_clip_mm"),
+               "edge_thresholds": model.metadata.get("edge_thresholds")}
     args.output.with_suffix(".json").write_text(json.dumps(summary, indent=2))
     print(json.dumps({k: v for k, v in summary.items() if k != "history"}))
     return 0
