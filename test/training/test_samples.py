@@ -5,12 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from scipy.ndimage import binary_dilation
 from synthetic_training_frames import synthetic_frames
 
 from tof_mpd_ros.correction import edges
 from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig, encode_frame
 from tof_mpd_ros.errors import InputError
+from tof_mpd_ros.frame import ToFFrame
 from tof_mpd_ros.training.samples import (
     auto_encoding,
     distortion_clip_mm,
@@ -94,8 +96,9 @@ def test_auto_bins_span_the_data(frames, calib) -> None:
 
 
 def test_data_driven_truncation_follows_the_distortion(frames, calib) -> None:
-    """T = the 99th percentile of |R* − R|, never under the paper's 15 mm; the targets are
-    clipped at it and the model learns to output up to it."""
+    """T = the 99th percentile of |R* − R| away from the edges, never under the paper's 15 mm;
+    mixed pixels on the depth edges (off by the step itself) do not move it, and the targets
+    are clipped at it."""
     rng = np.random.default_rng(1)
     d = np.concatenate([rng.uniform(-40.0, 40.0, 9950), np.full(50, 500.0)])  # flying pixels
     calibrated = np.zeros_like(d)
@@ -106,7 +109,19 @@ def test_data_driven_truncation_follows_the_distortion(frames, calib) -> None:
     data = prepare_training_data(frames, calib, EncodingConfig(), target_clip_mm=None)
     ranges = np.stack([calib.apply(f.range_mm, f.amplitude) for f in frames])
     ref = np.stack([f.reference_mm for f in frames])
+    near_edge = np.stack([binary_dilation(edges.ground_truth_edges(r)[0], iterations=2)
+                          for r in ref])
     usable = data.usable.numpy()
-    expected = distortion_clip_mm(ranges[usable], ref[usable])
+    expected = distortion_clip_mm(ranges[usable & ~near_edge], ref[usable & ~near_edge])
     assert data.target_clip_mm == expected
+    # 25 mm of multipath everywhere sets T; 300 mm mixed pixels on the edges do not move it
+    deep = [ToFFrame(f.reference_mm - 25.0, f.amplitude, f.intrinsics,
+                     reference_mm=f.reference_mm) for f in frames]
+    t_deep = prepare_training_data(deep, calib, EncodingConfig(), target_clip_mm=None)
+    assert 25.0 < t_deep.target_clip_mm < 35.0
+    mixed = [ToFFrame(np.where(binary_dilation(edges.ground_truth_edges(f.reference_mm)[0]),
+                               f.range_mm - 300.0, f.range_mm), f.amplitude, f.intrinsics,
+                      reference_mm=f.reference_mm) for f in deep]
+    assert prepare_training_data(mixed, calib, EncodingConfig(),
+                                 target_clip_mm=None).target_clip_mm == t_deep.target_clip_mm
     assert float(np.nanmax(np.abs(data.target.numpy()))) <= expected

@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 import torch.nn.functional as tnf
+from scipy.ndimage import binary_dilation
 
 from ..correction.calibration import IntrinsicCalibration
 from ..correction.encoding import EncodingConfig, encode_patches, prepare_planes
@@ -38,6 +39,8 @@ from ..frame import ToFFrame
 PAPER_TARGET_CLIP_MM = 15.0
 #: the data-driven truncation covers this quantile of the training set's |distortion|
 TARGET_CLIP_QUANTILE = 0.99
+#: ...over the pixels more than this many pixels from a ground-truth depth edge
+EDGE_MARGIN_PX = 2
 
 
 @dataclass
@@ -162,8 +165,8 @@ def prepare_training_data(frames: Sequence[ToFFrame], calibration: IntrinsicCali
         calibration: applied to every frame first (as at inference).
         encoding: patch encoding constants.
         target_clip_mm: T, the truncation of the F target; None = from the data
-            (:func:`distortion_clip_mm` over the usable pixels), stored in
-            ``TrainingData.target_clip_mm`` either way.
+            (:func:`distortion_clip_mm` over the usable pixels more than ``EDGE_MARGIN_PX``
+            from a ground-truth edge), stored in ``TrainingData.target_clip_mm`` either way.
 
     Returns:
         The prepared :class:`TrainingData`.
@@ -180,12 +183,17 @@ def prepare_training_data(frames: Sequence[ToFFrame], calibration: IntrinsicCali
     calibrated = calibration.apply(rng_, amp)
     r_t, la_t, valid = prepare_planes(torch.from_numpy(calibrated), torch.from_numpy(amp))
     usable = valid & torch.from_numpy(np.isfinite(ref))
+    gt = [edges.ground_truth_edges(r) for r in ref]
     if target_clip_mm is None:
-        target_clip_mm = distortion_clip_mm(calibrated[usable.numpy()], ref[usable.numpy()])
+        # away from the depth edges: mixed pixels there are off by the depth step itself
+        # (hundreds of mm), which is G's and the geodesic step's business, not F's
+        interior = usable.numpy() & np.stack([~binary_dilation(e, iterations=EDGE_MARGIN_PX)
+                                              for e, _ in gt])
+        target_clip_mm = distortion_clip_mm(calibrated[interior], ref[interior])
     with np.errstate(invalid="ignore"):
         t = np.clip(ref - calibrated, -target_clip_mm, target_clip_mm)
     target = torch.where(usable, torch.from_numpy(t.astype(np.float32)), float("nan"))
-    group = torch.from_numpy(np.stack([edges.ground_truth_edges(r)[1] for r in ref]))
+    group = torch.from_numpy(np.stack([g for _, g in gt]))
     group = torch.where(usable, group.to(torch.int8), torch.tensor(-1, dtype=torch.int8))
     half = encoding.patch_size // 2
     pad = (half, half, half, half)
