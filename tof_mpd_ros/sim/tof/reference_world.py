@@ -442,8 +442,11 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
                         other.albedo[unseen]))
     margin = round(border_fraction * max(surface.intrinsics.shape))
     if margin > 0:
-        # assumed surfaces: leaves that send light, not a view (nothing was seen through them)
+        # assumed surfaces: leaves that send light, not a view (nothing was seen through them),
+        # and not where another view saw the surface itself (no double counting)
         wide, beyond = border_extension(surface, margin, plane)
+        if others:
+            beyond &= _unseen_pixels(wide, pose, views, world_plane)
         faces += surface_faces(wide, pose, beyond)
         objects.append((wide.points_mm()[beyond] @ pose[:3, :3].T + pose[:3, 3],
                         wide.albedo[beyond]))
