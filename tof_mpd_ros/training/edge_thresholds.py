@@ -40,19 +40,19 @@ class ThresholdChoice:
         low, high: the chosen hysteresis thresholds.
         table: per candidate (low, high, boundary fraction within 5 mm, whole fraction).
         f_alone: (boundary, whole) fractions within 5 mm of F alone (no geodesic step).
-        default: (boundary, whole) of the paper's 0.3 / 0.6.
+        before: (low, high, boundary, whole) of the model's thresholds before the choice (the
+            paper's 0.3 / 0.6 for a fresh model).
     """
 
     low: float
     high: float
     table: tuple[tuple[float, float, float, float], ...]
     f_alone: tuple[float, float]
-    default: tuple[float, float]
+    before: tuple[float, float, float, float]
 
     def as_dict(self) -> dict:
         return {"low": self.low, "high": self.high, "f_alone": list(self.f_alone),
-                "default_0.3_0.6": list(self.default),
-                "candidates": [list(row) for row in self.table]}
+                "before": list(self.before), "candidates": [list(row) for row in self.table]}
 
 
 def _frame_inputs(model: CorrectionModel, frame: ToFFrame
@@ -113,7 +113,7 @@ def choose_edge_thresholds(model: CorrectionModel, frames: Sequence[ToFFrame],
                                 *grid]))
     table = [(lo, hi, *_score(_filtered(model, inputs, lo, hi), inputs)) for lo, hi in pairs]
     best = max(table, key=lambda row: (row[2], row[3]))
-    return ThresholdChoice(best[0], best[1], tuple(table), f_alone, table[0][2:])
+    return ThresholdChoice(best[0], best[1], tuple(table), f_alone, table[0])
 
 
 def with_thresholds(model: CorrectionModel, choice: ThresholdChoice) -> CorrectionModel:

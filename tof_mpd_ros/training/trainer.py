@@ -450,10 +450,11 @@ def train(
         edge_choice = choose_edge_thresholds(model, [frames[i] for i in val_ids])
         if edge_choice is not None:
             with_thresholds(model, edge_choice)
-            log.info("G edge thresholds %.2f / %.2f: boundary within 5 mm %.3f (0.3 / 0.6: "
+            lo, hi, boundary, _ = edge_choice.before
+            log.info("G edge thresholds %.2f / %.2f: boundary within 5 mm %.3f (%.2f / %.2f: "
                      "%.3f, F alone: %.3f) on the validation frames", edge_choice.low,
-                     edge_choice.high, max(r[2] for r in edge_choice.table),
-                     edge_choice.default[0], edge_choice.f_alone[0])
+                     edge_choice.high, max(r[2] for r in edge_choice.table), lo, hi, boundary,
+                     edge_choice.f_alone[0])
     model.metadata = {"training_data_digest": data.digest, "seed": seed,
                       "train_config": asdict(cfg), "n_frames": data.n_frames,
                       "target_clip_mm": data.target_clip_mm,
