@@ -12,7 +12,7 @@ from synthetic_training_frames import synthetic_frames
 from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.pipeline import correct
 from tof_mpd_ros.correction.weights import load_weights
-from tof_mpd_ros.errors import CalibrationError, WeightsError
+from tof_mpd_ros.errors import CalibrationError, InputError, WeightsError
 from tof_mpd_ros.frame import ToFFrame
 from tof_mpd_ros.training import TrainConfig, fit_calibration, train
 from tof_mpd_ros.training.trainer import split_frames
@@ -141,3 +141,20 @@ def frames_intrinsics():
     from tof_mpd_ros.camera import Intrinsics
 
     return Intrinsics.from_fov(W, H, 40.0)
+
+
+def test_truncation_candidates_are_chosen_on_validation(frames, identity, tmp_path) -> None:
+    """One F per candidate T learns from the same patches; the one most often within 5 mm on
+    the validation pixels is kept (and saved); 'None' resolves to the data's own T."""
+    cfg = TrainConfig(**{**FAST.__dict__, "target_clip_candidates": (15.0, 40.0, None),
+                         "tune_edge_thresholds": False})
+    model, history = train(frames, identity, cfg, seed=2, progress=False,
+                           weights_path=tmp_path / "w.npz")
+    scores = history[-1]["val_within_5mm_per_clip"]
+    assert {"15.0", "40.0"} <= set(scores) and all(0.0 <= v <= 1.0 for v in scores.values())
+    chosen = model.range_net.target_clip_mm
+    assert scores[str(chosen)] == max(scores.values())
+    assert model.metadata["target_clip_mm"] == chosen
+    assert load_weights(tmp_path / "w.npz").range_net.target_clip_mm == chosen
+    with pytest.raises(InputError):
+        TrainConfig(target_clip_candidates=(15.0, -1.0))

@@ -29,9 +29,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--max-samples-per-frame", type=int, default=4000,
                        help="pixels drawn afresh per frame and epoch (default 4000; 0 = every "
                             "usable pixel, the paper's ~10 M patches at MD scale)")
-    train.add_argument("--target-clip-mm", type=_clip_arg, default=15.0, metavar="MM|auto",
+    train.add_argument("--target-clip-mm", type=_clip_arg, default=(15.0,),
+                       metavar="MM|auto[,...]",
                        help="truncation T of F's target (default 15, the paper's); 'auto' = "
-                            "the training data's 99th percentile of |distortion|, at least 15")
+                            "the training data's 99th percentile of |distortion| away from "
+                            "edges, at least 15; several (e.g. 15,30,auto) = one F each on the "
+                            "same patches, the best on the validation frames kept")
     train.add_argument("--edge-thresholds", choices=("tune", "paper"), default="tune",
                        help="G's hysteresis thresholds: chosen on the validation frames by the "
                             "full pipeline's boundary accuracy (default), or the paper's "
@@ -43,18 +46,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     train.set_defaults(func=run_train)
 
 
-def _clip_arg(text: str) -> float | None:
-    """``auto`` -> None (from the data), else a positive number of mm."""
-    if text == "auto":
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected a number of mm or 'auto', got {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
-    return value
+def _clip_arg(text: str) -> tuple[float | None, ...]:
+    """``15`` / ``auto`` / ``15,30,auto`` -> the truncation candidates (None = from the data)."""
+    out: list[float | None] = []
+    for part in text.split(","):
+        part = part.strip()
+        if part == "auto":
+            out.append(None)
+            continue
+        try:
+            value = float(part)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected numbers of mm or 'auto', comma-separated, got {text!r}") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"must be > 0, got {part}")
+        out.append(value)
+    return tuple(out)
 
 
 def load_training_frames(paths: list[Path]) -> list:
@@ -77,7 +85,9 @@ def run_train(args: argparse.Namespace) -> int:
     frames = load_training_frames(args.recordings)
     config = TrainConfig(epochs=args.epochs, batch_size=args.batch_size,
                          max_samples_per_frame=args.max_samples_per_frame or None,
-                         target_clip_mm=args.target_clip_mm,
+                         target_clip_mm=args.target_clip_mm[0],
+                         target_clip_candidates=(args.target_clip_mm
+                                                 if len(args.target_clip_mm) > 1 else ()),
                          tune_edge_thresholds=args.edge_thresholds == "tune")
     model, history = train(frames, calibration, config, seed=args.seed,
                            checkpoint_dir=args.checkpoint_dir, weights_path=args.output,
@@ -85,7 +95,8 @@ def run_train(args: argparse.Namespace) -> int:
     summary = {"weights": str(args.output), "frames": len(frames), "epochs": len(history),
                "final": history[-1] if history else {}, "history": history,
                "target_clip_mm": model.metadata.get("target_clip_mm"),
-               "edge_thresholds": model.metadata.get("edge_thresholds")}
+               "edge_thresholds": model.metadata.get("edge_thresholds"),
+               "target_clip_validation": model.metadata.get("target_clip_validation")}
     args.output.with_suffix(".json").write_text(json.dumps(summary, indent=2))
     print(json.dumps({k: v for k, v in summary.items() if k != "history"}))
     return 0

@@ -154,6 +154,22 @@ def distortion_clip_mm(calibrated: np.ndarray, reference: np.ndarray, *,
     return float(max(floor_mm, math.ceil(float(np.quantile(d, quantile)))))
 
 
+def interior_clip_mm(calibrated: np.ndarray, reference: np.ndarray, usable: np.ndarray,
+                     edge_pixels: np.ndarray) -> float:
+    """:func:`distortion_clip_mm` over the usable pixels more than ``EDGE_MARGIN_PX`` from a
+    ground-truth edge: mixed pixels on the edges are off by the depth step itself (hundreds of
+    mm), which is G's and the geodesic step's business, not F's.
+
+    Args:
+        calibrated, reference: (N, H, W) float ranges, mm.
+        usable: (N, H, W) bool pixels with a measurement and a reference.
+        edge_pixels: (N, H, W) bool ground-truth edges.
+    """
+    near = np.stack([binary_dilation(e, iterations=EDGE_MARGIN_PX) for e in edge_pixels])
+    interior = usable & ~near
+    return distortion_clip_mm(calibrated[interior], reference[interior])
+
+
 def prepare_training_data(frames: Sequence[ToFFrame], calibration: IntrinsicCalibration,
                           encoding: EncodingConfig, *,
                           target_clip_mm: float | None = PAPER_TARGET_CLIP_MM
@@ -185,11 +201,8 @@ def prepare_training_data(frames: Sequence[ToFFrame], calibration: IntrinsicCali
     usable = valid & torch.from_numpy(np.isfinite(ref))
     gt = [edges.ground_truth_edges(r) for r in ref]
     if target_clip_mm is None:
-        # away from the depth edges: mixed pixels there are off by the depth step itself
-        # (hundreds of mm), which is G's and the geodesic step's business, not F's
-        interior = usable.numpy() & np.stack([~binary_dilation(e, iterations=EDGE_MARGIN_PX)
-                                              for e, _ in gt])
-        target_clip_mm = distortion_clip_mm(calibrated[interior], ref[interior])
+        target_clip_mm = interior_clip_mm(calibrated, ref, usable.numpy(),
+                                          np.stack([e for e, _ in gt]))
     with np.errstate(invalid="ignore"):
         t = np.clip(ref - calibrated, -target_clip_mm, target_clip_mm)
     target = torch.where(usable, torch.from_numpy(t.astype(np.float32)), float("nan"))

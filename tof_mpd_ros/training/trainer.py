@@ -52,7 +52,7 @@ import torch.nn.functional as tnf
 
 from ..correction.calibration import IntrinsicCalibration
 from ..correction.encoding import EncodingConfig
-from ..correction.networks import N_ORIENTATIONS
+from ..correction.networks import N_ORIENTATIONS, RangeRecoveryNet
 from ..correction.pipeline import CorrectionModel, GeodesicParams
 from ..correction.weights import save_weights
 from ..errors import CalibrationError, InputError, WeightsError
@@ -62,6 +62,7 @@ from .samples import (
     PAPER_TARGET_CLIP_MM,
     TrainingData,
     auto_encoding,
+    interior_clip_mm,
     prepare_training_data,
     sample_pixels,
 )
@@ -85,6 +86,9 @@ class TrainConfig:
         target_clip_mm: T, truncation of the F target (paper: 15 mm); None = from the
             training data's distortion (:func:`.samples.distortion_clip_mm`: its 99th
             percentile, at least 15 mm).
+        target_clip_candidates: several T to try (None = from the data): one F per candidate
+            learns from the same patches (F is small; the gather dominates) and the one most
+            often within 5 mm on the validation pixels is kept; empty = ``target_clip_mm``.
         max_samples_per_frame: pixels drawn per training frame and epoch, a new draw each
             epoch (default 4000: MD-scale training in ~10-15 min of CPU on 2 cores, see the
             module docstring for the accuracy check; None = every usable pixel, the paper's
@@ -113,6 +117,7 @@ class TrainConfig:
     momentum: float = 0.9
     weight_decay: float = 0.0
     target_clip_mm: float | None = PAPER_TARGET_CLIP_MM
+    target_clip_candidates: tuple[float | None, ...] = ()
     max_samples_per_frame: int | None = 4000
     val_fraction: float = 0.1
     val_samples_per_frame: int | None = 4000
@@ -131,6 +136,9 @@ class TrainConfig:
             raise InputError(f"need lr > 0 and 0 <= momentum < 1: {self}")
         if not 0 <= self.val_fraction < 1:
             raise InputError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
+        if any(t is not None and not t > 0 for t in
+               (self.target_clip_mm, *self.target_clip_candidates)):
+            raise InputError(f"target truncations must be > 0 (or None = from the data): {self}")
         if self.boundary_balance not in BALANCE_MODES:
             raise InputError(f"boundary_balance must be one of {BALANCE_MODES}, "
                              f"got {self.boundary_balance!r}")
@@ -192,12 +200,19 @@ def split_frames(n: int, val_fraction: float, seed: int,
 
 
 class _Nets(torch.nn.Module):
-    """F and G side by side, so one backward pass and one optimiser serve both."""
+    """F and G side by side, so one backward pass and one optimiser serve both. With several
+    truncation candidates, one F per candidate (``range_net`` is the first; the others, seeded
+    apart, in ``other_range_nets``) learns from the same patches."""
 
-    def __init__(self, model: CorrectionModel) -> None:
+    def __init__(self, model: CorrectionModel, others: Sequence[RangeRecoveryNet] = ()) -> None:
         super().__init__()
         self.range_net = model.range_net
         self.boundary_nets = model.boundary_nets
+        self.other_range_nets = torch.nn.ModuleList(others)
+
+    @property
+    def range_heads(self) -> list[RangeRecoveryNet]:
+        return [self.range_net, *self.other_range_nets]
 
 
 def _class_weights(data: TrainingData, flat: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
@@ -215,9 +230,12 @@ def _class_weights(data: TrainingData, flat: torch.Tensor, cfg: TrainConfig) -> 
 
 
 def _losses(nets: _Nets, feats: torch.Tensor, target: torch.Tensor, group: torch.Tensor,
-            weights: torch.Tensor, clip: float) -> tuple[torch.Tensor, torch.Tensor]:
-    """(F loss, G loss) of one batch: MSE on t / T, weighted cross entropy averaged over heads."""
-    loss_f = tnf.mse_loss(nets.range_net.normalised(feats), target / clip)
+            weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """(F loss, G loss) of one batch: MSE on clip(t, ±T) / T summed over the F heads (each its
+    own T), weighted cross entropy averaged over the G heads."""
+    loss_f = sum(tnf.mse_loss(f.normalised(feats), target.clamp(-f.target_clip_mm,
+                                                                  f.target_clip_mm)
+                              / f.target_clip_mm) for f in nets.range_heads)
     logits = nets.boundary_nets(feats)                                   # (B, 4, 2)
     labels = (group[:, None] == torch.arange(N_ORIENTATIONS)).long()     # (B, 4)
     ce = tnf.cross_entropy(logits.reshape(-1, 2), labels.reshape(-1), reduction="none")
@@ -263,8 +281,7 @@ def _run_epoch(nets: _Nets, opt: torch.optim.Optimizer, data: TrainingData, trai
     for feats, target, group in _chunks(data, flat, chunk, cfg.prefetch):
         for b0 in range(0, feats.shape[0], cfg.batch_size):
             sl = slice(b0, b0 + cfg.batch_size)
-            loss_f, loss_g = _losses(nets, feats[sl], target[sl], group[sl], weights,
-                                     data.target_clip_mm)
+            loss_f, loss_g = _losses(nets, feats[sl], target[sl], group[sl], weights)
             opt.zero_grad(set_to_none=True)
             (loss_f + loss_g).backward()
             opt.step()
@@ -290,29 +307,66 @@ def _validate(nets: _Nets, data: TrainingData, flat: torch.Tensor, weights: torc
     if flat.numel() == 0:
         return {}
     nets.eval()
-    err_before, err_after, loss_g, hits, positives, fired = [], [], 0.0, 0, 0, 0
+    heads = nets.range_heads
+    err_before, loss_g, hits, positives, fired = [], 0.0, 0, 0, 0
+    err_after: list[list[torch.Tensor]] = [[] for _ in heads]
     for c0 in range(0, flat.numel(), 20_000):
         idx = flat[c0:c0 + 20_000]
         feats, target, group = data.gather(idx)
         r = data.calibrated.reshape(-1)[idx]
         ref = data.reference.reshape(-1)[idx]
         err_before.append(r - ref)
-        err_after.append(r + nets.range_net(feats) - ref)
-        _, lg = _losses(nets, feats, target, group, weights, data.target_clip_mm)
+        for errs, f in zip(err_after, heads, strict=True):
+            errs.append(r + f(feats) - ref)
+        _, lg = _losses(nets, feats, target, group, weights)
         loss_g += float(lg) * idx.numel()
         fires = nets.boundary_nets.probabilities(feats) > 0.5                 # (M, 4)
         on_edge = group >= 0
         positives += int(on_edge.sum())
         hits += int(fires[on_edge, group[on_edge]].sum())
         fired += int(fires.sum())
-    before, after = torch.cat(err_before), torch.cat(err_after)
+    before, after = torch.cat(err_before), torch.cat(err_after[0])
+    within = [float((torch.cat(e).abs() < 5).float().mean()) for e in err_after]
     return {"val_rmse_before_mm": float(before.square().mean().sqrt()),
             "val_rmse_mm": float(after.square().mean().sqrt()),
             "val_within_5mm_before": float((before.abs() < 5).float().mean()),
             "val_within_5mm": float((after.abs() < 5).float().mean()),
             "val_loss_boundary": loss_g / flat.numel(),
             "val_edge_recall": hits / positives if positives else math.nan,
-            "val_edge_precision": hits / fired if fired else math.nan}
+            "val_edge_precision": hits / fired if fired else math.nan,
+            "val_within_5mm_per_clip": {str(f.target_clip_mm): w
+                                        for f, w in zip(heads, within, strict=True)}}
+
+
+def _resolve_clips(cfg: TrainConfig, data: TrainingData) -> list[float]:
+    """The F heads' truncations: the candidates (or the single ``target_clip_mm``), ``None``
+    resolved from the data (:func:`.samples.interior_clip_mm`), duplicates dropped."""
+    wanted = cfg.target_clip_candidates or (cfg.target_clip_mm,)
+    auto = None
+    out: list[float] = []
+    for t in wanted:
+        if t is None:
+            if auto is None:
+                usable = data.usable.numpy()
+                auto = interior_clip_mm(data.calibrated.numpy(), data.reference.numpy(), usable,
+                                        data.group.numpy() >= 0)
+            t = auto
+        if float(t) not in out:
+            out.append(float(t))
+    return out
+
+
+def _best_head(nets: _Nets, scores: dict[str, float]) -> RangeRecoveryNet:
+    """The F head most often within 5 mm on the validation pixels (the first without them)."""
+    heads = nets.range_heads
+    if len(heads) > 1 and scores:
+        best = max(heads, key=lambda f: scores.get(str(f.target_clip_mm), -1.0))
+        log.info("F truncation chosen on the validation frames: +-%.0f mm (%s)",
+                 best.target_clip_mm, ", ".join(f"{t}: {w:.3f}" for t, w in scores.items()))
+        return best
+    if len(heads) > 1:
+        log.warning("several F truncations but no validation frames: keeping the first")
+    return heads[0]
 
 
 def _fingerprint(cfg: TrainConfig, seed: int, data: TrainingData, val_ids: list[int]) -> str:
@@ -403,14 +457,19 @@ def train(
     enc = encoding or EncodingConfig()
     if cfg.auto_bins:
         enc = auto_encoding(frames, calibration, enc)
-    data = prepare_training_data(frames, calibration, enc, target_clip_mm=cfg.target_clip_mm)
+    # targets untruncated here: each F head truncates them at its own T
+    data = prepare_training_data(frames, calibration, enc, target_clip_mm=math.inf)
+    clips = _resolve_clips(cfg, data)
     train_ids, val_ids = split_frames(data.n_frames, cfg.val_fraction, seed, groups)
     model = CorrectionModel.untrained(calibration, enc, seed=seed, geodesic=geodesic)
-    model.range_net.target_clip_mm = data.target_clip_mm
-    log.info("F target truncated at +-%.0f mm", data.target_clip_mm)
-    nets = _Nets(model)
+    model.range_net.target_clip_mm = clips[0]
+    others = [RangeRecoveryNet(enc.n_features, target_clip_mm=t,
+                               generator=torch.Generator().manual_seed(seed * 1009 + k))
+              for k, t in enumerate(clips[1:], start=1)]
+    log.info("F target truncated at +-%s mm", " / ".join(f"{t:.0f}" for t in clips))
+    nets = _Nets(model, others)
     opt = torch.optim.SGD(
-        [{"params": nets.range_net.parameters(), "lr": cfg.lr_range},
+        [{"params": [p for f in nets.range_heads for p in f.parameters()], "lr": cfg.lr_range},
          {"params": nets.boundary_nets.parameters(), "lr": cfg.lr_boundary}],
         momentum=cfg.momentum, weight_decay=cfg.weight_decay, foreach=True)
     all_train = sample_pixels(data, train_ids, None, torch.Generator().manual_seed(seed))
@@ -445,6 +504,8 @@ def train(
     finally:
         torch.set_num_threads(threads)
     nets.eval()
+    clip_scores = history[-1].get("val_within_5mm_per_clip", {}) if history else {}
+    model.range_net = _best_head(nets, clip_scores)
     edge_choice = None
     if cfg.tune_edge_thresholds and val_ids:
         edge_choice = choose_edge_thresholds(model, [frames[i] for i in val_ids])
@@ -457,7 +518,8 @@ def train(
                      edge_choice.f_alone[0])
     model.metadata = {"training_data_digest": data.digest, "seed": seed,
                       "train_config": asdict(cfg), "n_frames": data.n_frames,
-                      "target_clip_mm": data.target_clip_mm,
+                      "target_clip_mm": model.range_net.target_clip_mm,
+                      "target_clip_validation": clip_scores,
                       "train_frames": len(train_ids), "val_frames": val_ids,
                       "final": history[-1] if history else {},
                       "edge_thresholds": None if edge_choice is None else edge_choice.as_dict()}
