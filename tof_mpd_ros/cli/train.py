@@ -29,12 +29,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--max-samples-per-frame", type=int, default=4000,
                        help="pixels drawn afresh per frame and epoch (default 4000; 0 = every "
                             "usable pixel, the paper's ~10 M patches at MD scale)")
-    train.add_argument("--target-clip-mm", type=_clip_arg, default=(15.0,),
+    train.add_argument("--target-clip-mm", type=_clip_arg, default=(15.0, 30.0, None),
                        metavar="MM|auto[,...]",
-                       help="truncation T of F's target (default 15, the paper's); 'auto' = "
-                            "the training data's 99th percentile of |distortion| away from "
-                            "edges, at least 15; several (e.g. 15,30,auto) = one F each on the "
-                            "same patches, the best on the validation frames kept")
+                       help="truncation T of F's target: one value (15 = the paper's), 'auto' "
+                            "(the training data's 99th percentile of |distortion| away from "
+                            "edges, at least 15), or several = one F each on the same patches, "
+                            "the best on the validation frames kept (default 15,30,auto)")
     train.add_argument("--edge-thresholds", choices=("tune", "paper"), default="tune",
                        help="G's hysteresis thresholds: chosen on the validation frames by the "
                             "full pipeline's boundary accuracy (default), or the paper's "
@@ -85,9 +85,7 @@ def run_train(args: argparse.Namespace) -> int:
     frames = load_training_frames(args.recordings)
     config = TrainConfig(epochs=args.epochs, batch_size=args.batch_size,
                          max_samples_per_frame=args.max_samples_per_frame or None,
-                         target_clip_mm=args.target_clip_mm[0],
-                         target_clip_candidates=(args.target_clip_mm
-                                                 if len(args.target_clip_mm) > 1 else ()),
+                         target_clip_candidates=args.target_clip_mm,
                          tune_edge_thresholds=args.edge_thresholds == "tune")
     model, history = train(frames, calibration, config, seed=args.seed,
                            checkpoint_dir=args.checkpoint_dir, weights_path=args.output,

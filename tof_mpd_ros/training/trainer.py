@@ -5,7 +5,9 @@ ground-truth edges, see :mod:`.samples`), splits them by frame (or by caller-giv
 scenes) into training and validation sets, and trains both networks on one stream of patches:
 
 * F minimises the squared error between its normalised output and ``t / T`` (the paper's
-  Euclidean loss on the target truncated to +-T = 15 mm);
+  Euclidean loss on the target truncated to +-T; the paper's T = 15 mm; by default one F per
+  candidate T — 15, 30 and the data's own — trains on the same patches and the one most often
+  within 5 mm on the validation pixels is kept);
 * each G head k minimises the cross entropy of "group k" vs "anything else". Edge pixels are
   rare (a few percent, spread over four groups), so by default (``boundary_balance="balanced"``)
   each head weights its positives by ``0.5 / pi_k`` and its negatives by ``0.5 / (1 - pi_k)``
@@ -70,6 +72,8 @@ from .samples import (
 log = logging.getLogger(__name__)
 
 CHECKPOINT_NAME = "checkpoint.pt"
+#: truncations tried by default (None = from the training data), chosen on validation data
+DEFAULT_CLIP_CANDIDATES: tuple[float | None, ...] = (15.0, 30.0, None)
 BALANCE_MODES = ("balanced", "none")
 
 
@@ -87,8 +91,11 @@ class TrainConfig:
             training data's distortion (:func:`.samples.distortion_clip_mm`: its 99th
             percentile, at least 15 mm).
         target_clip_candidates: several T to try (None = from the data): one F per candidate
-            learns from the same patches (F is small; the gather dominates) and the one most
-            often within 5 mm on the validation pixels is kept; empty = ``target_clip_mm``.
+            learns from the same patches (F is small; 3 candidates train at ~0.65× the
+            patches/s of one) and the one most often within 5 mm on the validation pixels is
+            kept; empty = ``target_clip_mm`` alone (the paper: 15 mm). Default 15, 30 and the
+            data's own: on the cell the data's 39 mm wins, on a path-traced camera with heavy
+            metal interreflections 15 mm does (docs/results.md).
         max_samples_per_frame: pixels drawn per training frame and epoch, a new draw each
             epoch (default 4000: MD-scale training in ~10-15 min of CPU on 2 cores, see the
             module docstring for the accuracy check; None = every usable pixel, the paper's
@@ -117,7 +124,7 @@ class TrainConfig:
     momentum: float = 0.9
     weight_decay: float = 0.0
     target_clip_mm: float | None = PAPER_TARGET_CLIP_MM
-    target_clip_candidates: tuple[float | None, ...] = ()
+    target_clip_candidates: tuple[float | None, ...] = DEFAULT_CLIP_CANDIDATES
     max_samples_per_frame: int | None = 4000
     val_fraction: float = 0.1
     val_samples_per_frame: int | None = 4000
