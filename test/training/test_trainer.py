@@ -146,7 +146,7 @@ def frames_intrinsics():
 def test_truncation_candidates_are_chosen_on_validation(frames, identity, tmp_path) -> None:
     """One F per candidate T learns from the same patches; the one most often within 5 mm on
     the validation pixels is kept (and saved); 'None' resolves to the data's own T."""
-    cfg = TrainConfig(**{**FAST.__dict__, "target_clip_candidates": (15.0, 40.0, None),
+    cfg = TrainConfig(**{**FAST.__dict__, "target_clip_mm": (15.0, 40.0, None),
                          "tune_edge_thresholds": False})
     model, history = train(frames, identity, cfg, seed=2, progress=False,
                            weights_path=tmp_path / "w.npz")
@@ -157,4 +157,6 @@ def test_truncation_candidates_are_chosen_on_validation(frames, identity, tmp_pa
     assert model.metadata["target_clip_mm"] == chosen
     assert load_weights(tmp_path / "w.npz").range_net.target_clip_mm == chosen
     with pytest.raises(InputError):
-        TrainConfig(target_clip_candidates=(15.0, -1.0))
+        TrainConfig(target_clip_mm=(15.0, -1.0))
+    with pytest.raises(InputError):
+        TrainConfig(target_clip_mm=())

@@ -85,7 +85,7 @@ def run_train(args: argparse.Namespace) -> int:
     frames = load_training_frames(args.recordings)
     config = TrainConfig(epochs=args.epochs, batch_size=args.batch_size,
                          max_samples_per_frame=args.max_samples_per_frame or None,
-                         target_clip_candidates=args.target_clip_mm,
+                         target_clip_mm=args.target_clip_mm,
                          tune_edge_thresholds=args.edge_thresholds == "tune")
     model, history = train(frames, calibration, config, seed=args.seed,
                            checkpoint_dir=args.checkpoint_dir, weights_path=args.output,

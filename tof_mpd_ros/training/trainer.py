@@ -61,7 +61,6 @@ from ..errors import CalibrationError, InputError, WeightsError
 from ..frame import ToFFrame
 from .edge_thresholds import choose_edge_thresholds, with_thresholds
 from .samples import (
-    PAPER_TARGET_CLIP_MM,
     TrainingData,
     auto_encoding,
     interior_clip_mm,
@@ -87,15 +86,14 @@ class TrainConfig:
         lr_range, lr_boundary: learning rates of F and of the G heads.
         momentum: SGD momentum.
         weight_decay: L2 penalty of both networks.
-        target_clip_mm: T, truncation of the F target (paper: 15 mm); None = from the
-            training data's distortion (:func:`.samples.distortion_clip_mm`: its 99th
-            percentile, at least 15 mm).
-        target_clip_candidates: several T to try (None = from the data): one F per candidate
-            learns from the same patches (F is small; 3 candidates train at ~0.65× the
-            patches/s of one) and the one most often within 5 mm on the validation pixels is
-            kept; empty = ``target_clip_mm`` alone (the paper: 15 mm). Default 15, 30 and the
-            data's own: on the cell the data's 39 mm wins, on a path-traced camera with heavy
-            metal interreflections 15 mm does (docs/results.md).
+        target_clip_mm: T, truncation of the F target, mm (the paper: 15); None = from the
+            training data (:func:`.samples.interior_clip_mm`: the 99th percentile of the
+            distortion away from edges, at least 15); a tuple of such values = one F per
+            candidate learns from the same patches (F is small; 3 candidates train at ~0.65×
+            the patches/s of one) and the one most often within 5 mm on the validation pixels
+            is kept. Default 15, 30 and the data's own: on the cell the data's 39 mm wins, on
+            a path-traced camera with heavy metal interreflections 15 mm does
+            (docs/results.md).
         max_samples_per_frame: pixels drawn per training frame and epoch, a new draw each
             epoch (default 4000: MD-scale training in ~10-15 min of CPU on 2 cores, see the
             module docstring for the accuracy check; None = every usable pixel, the paper's
@@ -123,8 +121,7 @@ class TrainConfig:
     lr_boundary: float = 0.05
     momentum: float = 0.9
     weight_decay: float = 0.0
-    target_clip_mm: float | None = PAPER_TARGET_CLIP_MM
-    target_clip_candidates: tuple[float | None, ...] = DEFAULT_CLIP_CANDIDATES
+    target_clip_mm: float | tuple[float | None, ...] | None = DEFAULT_CLIP_CANDIDATES
     max_samples_per_frame: int | None = 4000
     val_fraction: float = 0.1
     val_samples_per_frame: int | None = 4000
@@ -136,6 +133,12 @@ class TrainConfig:
     num_threads: int | None = 1
     tune_edge_thresholds: bool = True
 
+    @property
+    def clip_candidates(self) -> tuple[float | None, ...]:
+        """``target_clip_mm`` as a tuple of candidates."""
+        t = self.target_clip_mm
+        return tuple(t) if isinstance(t, (tuple, list)) else (t,)
+
     def __post_init__(self) -> None:
         if self.epochs < 1 or self.batch_size < 1 or self.chunk_batches < 1:
             raise InputError(f"epochs, batch_size and chunk_batches must be >= 1: {self}")
@@ -143,8 +146,8 @@ class TrainConfig:
             raise InputError(f"need lr > 0 and 0 <= momentum < 1: {self}")
         if not 0 <= self.val_fraction < 1:
             raise InputError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
-        if any(t is not None and not t > 0 for t in
-               (self.target_clip_mm, *self.target_clip_candidates)):
+        if not self.clip_candidates or any(t is not None and not t > 0
+                                           for t in self.clip_candidates):
             raise InputError(f"target truncations must be > 0 (or None = from the data): {self}")
         if self.boundary_balance not in BALANCE_MODES:
             raise InputError(f"boundary_balance must be one of {BALANCE_MODES}, "
@@ -346,9 +349,9 @@ def _validate(nets: _Nets, data: TrainingData, flat: torch.Tensor, weights: torc
 
 
 def _resolve_clips(cfg: TrainConfig, data: TrainingData) -> list[float]:
-    """The F heads' truncations: the candidates (or the single ``target_clip_mm``), ``None``
-    resolved from the data (:func:`.samples.interior_clip_mm`), duplicates dropped."""
-    wanted = cfg.target_clip_candidates or (cfg.target_clip_mm,)
+    """The F heads' truncations: ``target_clip_mm``'s candidates, ``None`` resolved from the
+    data (:func:`.samples.interior_clip_mm`), duplicates dropped."""
+    wanted = cfg.clip_candidates
     auto = None
     out: list[float] = []
     for t in wanted:
