@@ -22,8 +22,9 @@ cycle of the detected SIMD, explained in the output) and against a large float32
 now; the paper's 165 ms (GPU) and the targets as reference lines; the machine (CPU model, cores,
 torch / numba threads, load average at start and end). ``--json PATH`` writes everything.
 
-Frames: the recording ``--frames`` (default ``/tmp/small/md_test``) with the model ``--weights``
-(default ``/tmp/small_w.npz``); a synthetic scene and an untrained model when they are missing.
+Frames: the recording ``--frames`` (e.g. ``md_test`` of ``tof-mpd sim dataset --small``) with the
+model ``--weights`` (default: the shipped weights); a synthetic scene and an untrained model when
+no recording is given.
 The 320x240 frames and calibration are the 180x140 ones upscaled (nearest neighbour), with the
 same networks: the timing depends on the size and on the edge density, not on the exact scene.
 
@@ -63,8 +64,6 @@ from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
 PAPER_MS = 165.0                       # the paper, per frame, with a GPU
 TARGETS_MS = {"180x140": 25.0, "320x240": 60.0}   # issue 8 (SPEC §6: <= 33 ms at 180x140)
 STAGES = ("calibration", "encoding", "F", "G", "F+G", "NMS+hysteresis", "geodesic", "other")
-DEFAULT_FRAMES = Path("/tmp/small/md_test")
-DEFAULT_WEIGHTS = Path("/tmp/small_w.npz")
 PRECISION = {"value": "float32"}        # --precision: the fast path's first-layer GEMMs
 
 
@@ -173,10 +172,13 @@ def _synthetic(h: int = 140, w: int = 180, n: int = 4) -> list[tuple[np.ndarray,
     return out
 
 
-def load_inputs(frames_path: Path, weights_path: Path
+def load_inputs(frames_path: Path | None, weights_path: Path | None
                 ) -> tuple[CorrectionModel, list[tuple[np.ndarray, np.ndarray]], str]:
     """(model, [(range, amplitude)], description) at the model's native size."""
-    if frames_path.exists() and weights_path.exists():
+    if frames_path is not None:
+        from tof_mpd_ros.correction.default_weights import default_weights_path
+
+        weights_path = weights_path or default_weights_path()
         from tof_mpd_ros.correction.weights import load_weights
         from tof_mpd_ros.recordings import RecordingReader
 
@@ -185,7 +187,7 @@ def load_inputs(frames_path: Path, weights_path: Path
         return model, frames, f"{frames_path} ({len(frames)} frames), weights {weights_path}"
     frames = _synthetic()
     model = CorrectionModel.untrained(IntrinsicCalibration.identity(140, 180), seed=0)
-    return model, frames, "synthetic scene, untrained model (recording/weights not found)"
+    return model, frames, "synthetic scene, untrained model (no --frames given)"
 
 
 def at_size(model: CorrectionModel, frames: list[tuple[np.ndarray, np.ndarray]], h: int,
@@ -532,8 +534,8 @@ def full_check(model: CorrectionModel, frames: list[tuple[np.ndarray, np.ndarray
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=Path, default=DEFAULT_FRAMES)
-    parser.add_argument("--weights", type=Path, default=DEFAULT_WEIGHTS)
+    parser.add_argument("--frames", type=Path, help="recording (default: a synthetic scene)")
+    parser.add_argument("--weights", type=Path, help="weights (default: the shipped ones)")
     parser.add_argument("--sizes", default="180x140,320x240", help="WxH list")
     parser.add_argument("--repeats", type=int, default=30, help="fast-path calls per size")
     parser.add_argument("--ref-frames", type=int, default=3)

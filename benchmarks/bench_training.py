@@ -15,8 +15,8 @@ and prints:
   with every usable pixel, for long steady epochs), plus preparation and validation (54
   validation frames x 4000 pixels, the defaults).
 
-Frames: ``--frames`` (default ``/tmp/small/md_train``) with the calibration of ``--weights``
-(default ``/tmp/small_w.npz``); synthetic box scenes and the identity calibration when missing.
+Frames: ``--frames`` (e.g. ``md_train`` of ``tof-mpd sim dataset --small``) with the calibration
+of ``--weights`` (identity without); synthetic box scenes when no recording is given.
 
 Usage: ``python benchmarks/bench_training.py [--n-frames 6] [--epochs 3] [--subsample 4000]
 [--json out.json]``. Takes ~1 min on an idle 2-core machine.
@@ -49,8 +49,6 @@ MD_TRAIN_FRAMES = 540
 MD_PATCHES_PER_FRAME = 18_500          # ~10 M patches / 540 frames (the paper)
 MD_EPOCHS = 40
 TARGET_MIN = 30.0                      # issue 8: F + G on MD-scale data in <= 30 min
-DEFAULT_FRAMES = Path("/tmp/small/md_train")
-DEFAULT_WEIGHTS = Path("/tmp/small_w.npz")
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_pipeline import cpu_peak, machine  # noqa: E402
@@ -76,14 +74,14 @@ def synthetic_frames(n: int, h: int = 140, w: int = 180, seed: int = 0) -> list[
     return out
 
 
-def load_frames(path: Path, weights: Path, n: int
+def load_frames(path: Path | None, weights: Path | None, n: int
                 ) -> tuple[list[ToFFrame], IntrinsicCalibration, str]:
     """(frames with a reference, calibration, description)."""
-    if path.exists():
+    if path is not None:
         from tof_mpd_ros.recordings import RecordingReader
 
         frames = [f for f in RecordingReader(path).frames() if f.reference_mm is not None][:n]
-        if weights.exists():
+        if weights is not None:
             from tof_mpd_ros.correction.weights import load_weights
 
             calib = load_weights(weights).calibration
@@ -95,13 +93,13 @@ def load_frames(path: Path, weights: Path, n: int
             return frames, calib, f"{len(frames)} frames of {path}, {what}"
     frames = synthetic_frames(n)
     return (frames, IntrinsicCalibration.identity(*frames[0].range_mm.shape),
-            f"{n} synthetic frames (recording not found), identity calibration")
+            f"{n} synthetic frames (no --frames given), identity calibration")
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=Path, default=DEFAULT_FRAMES)
-    parser.add_argument("--weights", type=Path, default=DEFAULT_WEIGHTS)
+    parser.add_argument("--frames", type=Path, help="recording (default: synthetic frames)")
+    parser.add_argument("--weights", type=Path, help="its calibration (default: identity)")
     parser.add_argument("--n-frames", type=int, default=6)
     parser.add_argument("--epochs", type=int, default=3)
     parser.add_argument("--subsample", type=int,

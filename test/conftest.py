@@ -73,17 +73,17 @@ except ImportError:  # pragma: no cover - torch is a hard dependency, but keep c
 def azure_kinect_dir() -> Path:
     """The real Azure Kinect frame (depth, IR, factory calibration).
 
-    It is data kept beside the repository, ``../shared/realdata/azure_kinect_mug``, looked up
-    relative to this checkout first and then where the package's real-data tools look by
-    default. It is neither in the package nor in an installable extra, so a checkout without it
-    skips the tests that need it (with this reason) instead of failing; beside the shared data,
-    as in the README's test environment, nothing skips.
+    It is data kept beside the repository, ``../shared/realdata/azure_kinect_mug`` relative to
+    this checkout, or wherever ``TOF_MPD_AZURE_KINECT_DIR`` points. It is neither in the
+    package nor in an installable extra, so a checkout without it skips the tests that need it
+    (with this reason) instead of failing; beside the shared data, as in the README's test
+    environment, nothing skips.
     """
     from tof_mpd_ros.mismatch import realdata
 
-    for candidate in (Path(__file__).resolve().parents[2] / "shared" / "realdata"
-                      / "azure_kinect_mug", realdata.DEFAULT_DIR):
-        if realdata.is_azure_kinect_dir(candidate):
-            return candidate
+    beside = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "azure_kinect_mug"
+    candidate = Path(os.environ.get("TOF_MPD_AZURE_KINECT_DIR", beside))
+    if realdata.is_azure_kinect_dir(candidate):
+        return candidate
     pytest.skip("the real Azure Kinect frame (../shared/realdata/azure_kinect_mug beside the "
-                "repository) is not present")
+                "repository, or TOF_MPD_AZURE_KINECT_DIR) is not present")

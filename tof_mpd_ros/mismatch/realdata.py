@@ -29,7 +29,6 @@ from ..frame import DEFAULT_MOD_FREQ_HZ, ToFFrame
 from ..sim.tof import ToFConfig
 from ..sim.tof.config import DEFAULT_LIGHT_POWER
 
-DEFAULT_DIR = Path("/work/shared/realdata/azure_kinect_mug")
 #: NFOV unbinned: 640 x 576 crop of the 1024 x 1024 sensor at this offset (Azure Kinect SDK)
 NFOV_UNBINNED_OFFSET = (192.0, 180.0)
 #: IR saturates here; saturated pixels are invalid
@@ -47,7 +46,7 @@ def azure_kinect_config() -> ToFConfig:
 
 
 def is_azure_kinect_dir(path: str | Path) -> bool:
-    """True for a folder laid out like ``DEFAULT_DIR`` (depth, IR and calibration)."""
+    """True for a folder laid out like the shared Azure Kinect frame (depth, IR, calibration)."""
     p = Path(path)
     return p.is_dir() and all((p / f).exists() for f in
                               ("depth_000.npy", "ir_000.npy", "calibration.json"))
@@ -237,7 +236,7 @@ def plane_reference(range_mm: np.ndarray, intrinsics: Intrinsics, *, seed: int =
                           (counts[0], counts[1]))
 
 
-def azure_kinect_frame(directory: str | Path = DEFAULT_DIR, *, downsample: int = 4,
+def azure_kinect_frame(directory: str | Path, *, downsample: int = 4,
                        seed: int = 0) -> tuple[ToFFrame, PlaneReference]:
     """The Azure Kinect frame as a pinhole ToF frame with the plane-fit reference.
 
