@@ -206,6 +206,17 @@ def _add(m, i, wt, x, y, z):  # pragma: no cover - compiled
     m[i, 9] += wt * z * z
 
 
+
+@nb.njit(cache=True, inline="always")
+def _set_plane(fit, mx, my, mz, ex, ey, ez):  # pragma: no cover - compiled
+    """Store a plane (mean point, normal) in slots 2..7 of a fit record."""
+    fit[2] = mx
+    fit[3] = my
+    fit[4] = mz
+    fit[5] = ex
+    fit[6] = ey
+    fit[7] = ez
+
 @nb.njit(cache=True, error_model="numpy")
 def _score(m, fit, px, py, pz, own):  # pragma: no cover - compiled
     """Fit the window with moments ``m`` (offsets from the pixel's point p) into ``fit``.
@@ -224,12 +235,7 @@ def _score(m, fit, px, py, pz, own):  # pragma: no cover - compiled
         return
     off = (ex * mx + ey * my + ez * mz) if own else 0.0
     fit[0] = (lam * n / max(n - 3.0, 1.0) + off * off) / (cos * cos)
-    fit[2] = mx
-    fit[3] = my
-    fit[4] = mz
-    fit[5] = ex
-    fit[6] = ey
-    fit[7] = ez
+    _set_plane(fit, mx, my, mz, ex, ey, ez)
 
 
 @nb.njit(parallel=True, cache=True, error_model="numpy")
@@ -358,12 +364,7 @@ def _refit(points, rays, v, u, radius, tol, fit, other, exclude, refits,
         if not ok or _cos_incidence(px + mx, py + my, pz + mz, ex, ey, ez) < EDGE_ON_COS:
             return it > 0
         fit[1] = m[0, 0]
-        fit[2] = mx
-        fit[3] = my
-        fit[4] = mz
-        fit[5] = ex
-        fit[6] = ey
-        fit[7] = ez
+        _set_plane(fit, mx, my, mz, ex, ey, ez)
     return True
 
 
