@@ -84,23 +84,30 @@ class ComponentEvaluation:
                 "regions": self.regions, "g_operating_point": self.g_operating_point}
 
 
-def g_edge_strength(model: CorrectionModel, calibrated_mm: np.ndarray,
+def g_probabilities(model: CorrectionModel, calibrated_mm: np.ndarray,
                     amplitude: np.ndarray) -> np.ndarray:
-    """G's non-maximum-suppressed edge strength of one frame (for precision/recall sweeps).
+    """G's four heads' edge probabilities of one frame.
 
     Args:
         calibrated_mm: (H, W) float32 calibrated radial range in mm, NaN = invalid.
         amplitude: (H, W) float32 amplitude.
 
     Returns:
-        (H, W) float32 edge probability where a ridge survives NMS, 0 elsewhere.
+        (4, H, W) float32 probability per orientation group, 0 on invalid pixels.
     """
     features, valid = encode_frame(calibrated_mm, amplitude, model.encoding, boundary_only=True)
     with torch.no_grad():
         probs = boundary_scores(features, model.boundary_nets).numpy()
     h, w = calibrated_mm.shape
-    scores = np.where(valid[0].numpy(), probs.T.reshape(4, h, w), 0.0).astype(np.float32)
-    return edge_map_from_responses(scores)[1]
+    return np.where(valid[0].numpy(), probs.T.reshape(4, h, w), 0.0).astype(np.float32)
+
+
+def g_edge_strength(model: CorrectionModel, calibrated_mm: np.ndarray,
+                    amplitude: np.ndarray) -> np.ndarray:
+    """G's non-maximum-suppressed edge strength of one frame (for precision/recall sweeps):
+    (H, W) float32 edge probability where a ridge survives NMS, 0 elsewhere (arguments as
+    :func:`g_probabilities`)."""
+    return edge_map_from_responses(g_probabilities(model, calibrated_mm, amplitude))[1]
 
 
 def evaluate_model(model: CorrectionModel, frames: Iterable[ToFFrame], *,

@@ -16,13 +16,11 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-import torch
 
 from ..correction import edges as edge_module
 from ..correction import geodesic
-from ..correction.encoding import encode_frame
-from ..correction.networks import boundary_scores
 from ..correction.pipeline import CorrectionModel, correct
+from ..evaluation.components import g_probabilities
 from ..evaluation.metrics import FrameAccumulator, boundary_region
 from ..frame import ToFFrame
 
@@ -60,12 +58,7 @@ def _frame_inputs(model: CorrectionModel, frame: ToFFrame
     """(R_F (H, W) float32 mm, G probabilities (4, H, W) float32, reference (H, W) mm,
     boundary region (H, W) bool) of one validation frame."""
     result = correct(model, frame.range_mm, frame.amplitude, use_boundary=False)
-    features, valid = encode_frame(result.calibrated_mm, frame.amplitude, model.encoding,
-                                   boundary_only=True)
-    with torch.no_grad():
-        probs = boundary_scores(features, model.boundary_nets).numpy()
-    h, w = frame.range_mm.shape
-    scores = np.where(valid[0].numpy(), probs.T.reshape(4, h, w), 0.0).astype(np.float32)
+    scores = g_probabilities(model, result.calibrated_mm, frame.amplitude)
     reference = np.asarray(frame.reference_mm, np.float32)
     return result.range_f_mm, scores, reference, boundary_region(reference)
 
