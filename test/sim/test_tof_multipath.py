@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 import pytest
-from scipy.ndimage import binary_erosion
+from scipy.ndimage import binary_dilation, binary_erosion
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.errors import InputError
@@ -258,3 +258,26 @@ def test_an_external_transport_phasor_runs_through_the_same_camera():
     assert ext.multipath_phasor is None
     with pytest.raises(InputError, match="transport"):
         render_tof(surf, cfg, np.random.default_rng(5), supersample=1, transport=z[1:])
+
+
+def test_a_pixel_gathers_the_indirect_light_over_its_footprint():
+    """A box-top pixel whose footprint reaches over the crease onto the side face gets part of
+    that face's indirect light, as the direct light is mixed; pixels away from the crease keep
+    theirs (the top sees no other surface: nothing)."""
+    scene = box_on_table_scene(300.0, 100.0, 40.0, 0.5)
+    surf = raycast(scene, K)
+    centre = MULTIPATH.with_effect("mixed_pixels", enabled=False)
+    footprint = MULTIPATH.with_effect("mixed_pixels", enabled=True)
+    off = np.abs(render_from_reference(surf.range_mm, K, config=centre).multipath_phasor)
+    on = np.abs(render_from_reference(surf.range_mm, K, config=footprint).multipath_phasor)
+    face = surf.normal[..., 0] < -0.9
+    top = (surf.object_id == 1) & ~face
+    crease = top & binary_dilation(face, np.ones((3, 3), bool))
+    inner = binary_erosion(top, iterations=3)
+    assert crease.sum() > 50 and inner.sum() > 1000
+    face_level = float(np.median(on[face]))
+    # at the pixel centre the crease pixels are top face: (almost) nothing arrives there
+    assert float(np.median(off[crease])) < 0.02 * face_level
+    # over the footprint (σ ≈ 0.42 px: a neighbour weighs ~5 %) they get that much of the face
+    assert 0.02 * face_level < float(np.median(on[crease])) < 0.15 * face_level
+    np.testing.assert_array_equal(on[inner], off[inner])

@@ -54,6 +54,8 @@ class RenderContext:
             ``multipath`` then builds one from ``surface`` alone.
         camera_shift: (4, 4) float64 true camera → assumed camera frame (mm), composed by the
             geometry effects that move the camera (identity otherwise).
+        footprint_sigma_px: σ in pixels by which light computed at the pixel centres (the
+            indirect light) is mixed over each pixel's footprint; 0 with ``mixed_pixels`` off.
     """
 
     intrinsics: Intrinsics
@@ -72,3 +74,4 @@ class RenderContext:
     receivers: np.ndarray | None = None
     world: WorldModel | None = None
     camera_shift: np.ndarray = field(default_factory=lambda: np.eye(4))
+    footprint_sigma_px: float = 0.0

@@ -5,7 +5,9 @@ a supersampled surface (s × s samples per pixel) the per-sample phasors are blu
 Gaussian (σ·s samples) and box-summed over each pixel, so a pixel on a depth edge reads a range
 between foreground and background. From a reference image (one sample per pixel) the pixel's
 phasor is mixed with its neighbours by a Gaussian with the same second moment as the footprint,
-σ_eff = sqrt(σ² + 1/12) px. Disabled, each pixel sees only the ray through its centre.
+σ_eff = sqrt(σ² + 1/12) px (:func:`footprint_sigma_px`). ``multipath`` mixes the indirect light,
+which it computes at the pixel centres, the same way. Disabled, each pixel sees only the ray
+through its centre.
 """
 
 from __future__ import annotations
@@ -28,6 +30,17 @@ def blur_phasor(phasor: np.ndarray, sigma: float) -> np.ndarray:
     re = ndimage.gaussian_filter(phasor.real, sigma, mode="nearest", truncate=3.0)
     im = ndimage.gaussian_filter(phasor.imag, sigma, mode="nearest", truncate=3.0)
     return re + 1j * im
+
+
+def footprint_sigma_px(psf_sigma_px: float) -> float:
+    """σ in pixels of the Gaussian with the second moment of a pixel's footprint (its unit box
+    convolved with the optical blur): how far a pixel-centre quantity is mixed."""
+    return math.sqrt(psf_sigma_px * psf_sigma_px + 1.0 / 12.0)
+
+
+def blur_reach_px(sigma: float) -> int:
+    """Pixels :func:`blur_phasor` reaches on each side (scipy's kernel radius at truncate 3)."""
+    return int(3.0 * sigma + 0.5) if sigma > 0 else 0
 
 
 def box_sum(samples: np.ndarray, s: int) -> np.ndarray:
@@ -53,4 +66,4 @@ class MixedPixels(Effect):
         sigma = float(params["psf_sigma_px"])
         if s > 1:
             return box_sum(blur_phasor(x, sigma * s), s)
-        return blur_phasor(x, math.sqrt(sigma * sigma + 1.0 / 12.0))
+        return blur_phasor(x, footprint_sigma_px(sigma))

@@ -14,12 +14,14 @@ from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
+from scipy import ndimage
 
 from ..context import RenderContext
 from ..effect import Effect, ParamSpec
 from ..reference_world import world_from_surface
 from ..transport import indirect_phasor
 from ..world import DEFAULT_BEAM_DEG, DEFAULT_CUTOFF_DEG, DEFAULT_LEAF_MM
+from .mixed_pixels import blur_phasor, blur_reach_px
 
 
 class Multipath(Effect):
@@ -59,6 +61,21 @@ class Multipath(Effect):
                                    light_power=ctx.light_power, bounces=int(params["bounces"]),
                                    open_ratio=float(params["open_ratio"]),
                                    bounce_patch_mm=float(params["bounce_patch_mm"]),
-                                   receivers=ctx.receivers)
+                                   receivers=_widened(ctx.receivers, ctx.footprint_sigma_px))
+        # a pixel integrates the indirect light over its footprint as it does the direct: at
+        # a crease a pixel partly on a grazing side face gets part of that face's multipath
+        indirect = blur_phasor(indirect, ctx.footprint_sigma_px)
+        if ctx.receivers is not None:
+            indirect = np.where(ctx.receivers, indirect, 0.0)
         ctx.multipath_phasor = float(params["gain"]) * indirect
         return x + ctx.multipath_phasor
+
+
+def _widened(receivers: np.ndarray | None, sigma_px: float) -> np.ndarray | None:
+    """(H, W) bool receivers grown by the footprint blur's reach, so that the kept pixels'
+    footprint mix is exactly what it would be with every pixel a receiver."""
+    reach = blur_reach_px(sigma_px)
+    if receivers is None or reach == 0:
+        return receivers
+    # a square: the blur's kernel reaches the diagonal neighbours too
+    return ndimage.binary_dilation(receivers, np.ones((2 * reach + 1,) * 2, bool))
