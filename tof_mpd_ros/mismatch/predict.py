@@ -33,6 +33,7 @@ from ..frame import ToFFrame
 from ..sim.surface import SurfaceImage
 from ..sim.tof import EFFECTS, CameraMotion, ToFConfig
 from ..sim.tof.context import RenderContext
+from ..sim.tof.effects.mixed_pixels import blur_phasor, light_footprint_sigma_px
 from ..sim.tof.effects.noise import phasor_noise_std
 from ..sim.tof.effects.phase_wrapping import PhaseWrapping
 from ..sim.tof.effects.pixel_offset import offset_pattern
@@ -425,7 +426,9 @@ class FramePredictor:
                 ctx.true_range_mm = state.surface.range_mm
         elif name == "multipath":
             if cfg.enabled:
-                state.z = state.z + float(cfg.params["gain"]) * self.indirect(config)
+                # mixed over the footprint as the simulator's multipath effect does
+                indirect = blur_phasor(self.indirect(config), light_footprint_sigma_px(config))
+                state.z = state.z + float(cfg.params["gain"]) * indirect
         elif name == "lens_scatter":
             if cfg.enabled:
                 state.z = lens_scatter_fast(state.z, cfg.params)

@@ -27,7 +27,7 @@ from ...frame import ToFFrame
 from ..surface import SurfaceImage
 from .config import ToFConfig
 from .context import CameraMotion, RenderContext
-from .effects.mixed_pixels import footprint_sigma_px
+from .effects.mixed_pixels import light_footprint_sigma_px
 from .effects.phase_wrapping import PhaseWrapping
 from .phasor import direct_phasor, phasor_to_range, unwrap_to_guide
 from .rays import ray_directions
@@ -178,9 +178,7 @@ def _render(samples: SurfaceImage, config: ToFConfig, rng: np.random.Generator,
                         light_power=config.light_power, rng=rng, frame_index=int(frame_index),
                         motion=motion, noise_params=dict(config.effects["noise"].params),
                         world=world)
-    if config.effects["mixed_pixels"].enabled:
-        ctx.footprint_sigma_px = footprint_sigma_px(
-            float(config.effects["mixed_pixels"].params["psf_sigma_px"]))
+    ctx.footprint_sigma_px = light_footprint_sigma_px(config)
     if receivers is not None and not any(config.effects[name].enabled
                                          for name in _PIXEL_MIXING_AFTER_MULTIPATH):
         receivers = np.asarray(receivers, dtype=bool)

@@ -14,13 +14,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from scipy import ndimage
 
 from ..context import RenderContext
 from ..effect import Effect, ParamSpec
+
+if TYPE_CHECKING:
+    from ..config import ToFConfig
 
 
 def blur_phasor(phasor: np.ndarray, sigma: float) -> np.ndarray:
@@ -36,6 +39,13 @@ def footprint_sigma_px(psf_sigma_px: float) -> float:
     """σ in pixels of the Gaussian with the second moment of a pixel's footprint (its unit box
     convolved with the optical blur): how far a pixel-centre quantity is mixed."""
     return math.sqrt(psf_sigma_px * psf_sigma_px + 1.0 / 12.0)
+
+
+def light_footprint_sigma_px(config: ToFConfig) -> float:
+    """σ in pixels by which ``config``'s camera mixes light computed at the pixel centres (the
+    indirect light) over each pixel's footprint: 0 with ``mixed_pixels`` off."""
+    effect = config.effects[MixedPixels.name]
+    return footprint_sigma_px(float(effect.params["psf_sigma_px"])) if effect.enabled else 0.0
 
 
 def blur_reach_px(sigma: float) -> int:
