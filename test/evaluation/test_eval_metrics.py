@@ -106,7 +106,8 @@ def test_edge_precision_recall_pools_frames_and_respects_valid():
 def test_region_accuracy_splits_by_distance_to_the_edges() -> None:
     """A step edge at column 20: the estimate is 10 mm off within 2 px of it and exact
     elsewhere, so the edge region is 0 % within 5 mm and the others 100 %."""
-    from tof_mpd_ros.evaluation.components import REGIONS, region_accuracy
+    from tof_mpd_ros.evaluation.components import region_accuracy
+    from tof_mpd_ros.evaluation.diagnosis import REGIONS
 
     ref = np.full((30, 40), 500.0)
     gt = np.zeros(ref.shape, bool)

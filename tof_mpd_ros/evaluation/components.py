@@ -21,12 +21,11 @@ from ..correction.encoding import encode_frame
 from ..correction.networks import boundary_scores
 from ..correction.pipeline import CorrectionModel, correct
 from ..frame import ToFFrame
+from .diagnosis import RegionTally, edge_distance
 from .metrics import (
     DEFAULT_THRESHOLDS_MM,
     EdgePRCurve,
-    FrameAccumulator,
     FrameEvaluation,
-    _distance_to,
     boundary_region,
     edge_precision_recall,
     evaluate_frames,
@@ -35,9 +34,6 @@ from .metrics import (
 STAGES = ("raw", "calibrated", "F", "geodesic+G", "full")
 G_THRESHOLDS = tuple(np.round(np.linspace(0.05, 0.95, 19), 3))
 CANNY_HIGHS_MM = tuple(float(t) for t in np.geomspace(2.0, 80.0, 19))
-#: regions by distance (px) to the nearest ground-truth edge: (name, lower, upper], inclusive
-REGIONS = (("edge (<= 2 px)", -1.0, 2.0), ("near edge (2-5 px)", 2.0, 5.0),
-           ("interior (> 5 px)", 5.0, np.inf))
 
 
 @dataclass
@@ -170,16 +166,7 @@ def region_accuracy(estimates: dict[str, list[np.ndarray]], references: list[np.
         references: N (H, W) float references, mm (NaN = not scored).
         gt_edges: N (H, W) bool ground-truth edges.
     """
-    dist = [_distance_to(g.astype(bool)) for g in gt_edges]
-    out: dict[str, dict[str, dict[str, float]]] = {}
-    for name, lo, hi in REGIONS:
-        out[name] = {}
-        for stage, est in estimates.items():
-            # the accumulator's "boundary" pool takes any mask: here the region's
-            acc = FrameAccumulator((threshold_mm,))
-            for e, r, d in zip(est, references, dist, strict=True):
-                acc.add(e, r, (d > lo) & (d <= hi))
-            curve = acc.result().boundary
-            out[name][stage] = {"within": curve.accuracy[0], "mae_mm": curve.mae_mm,
-                                "pixels": curve.n_pixels}
-    return out
+    tally = RegionTally(threshold_mm)
+    for i, (ref, gt) in enumerate(zip(references, gt_edges, strict=True)):
+        tally.add({stage: est[i] for stage, est in estimates.items()}, ref, edge_distance(gt))
+    return tally.result()

@@ -1,0 +1,128 @@
+"""Measurements that explain a ranking: where each method misses, and why.
+
+The benchmark's findings quote these instead of reasoning about causes:
+
+* :class:`RegionTally` — accuracy by distance to the ground-truth edges (on the edge, near it,
+  interior), so "it blurs the boundaries" is a number in the ≤ 2 px region;
+* :class:`MissTally` — of a method's misses (|error| ≥ 5 mm or no answer), the share that is
+  *noise-limited* (the local mean error over 5 × 5 valid pixels is within 5 mm: averaging would
+  have fixed it) and the share *beyond the truncation* of F's target (|reference − calibrated|
+  > T: F cannot reach it by construction, whatever its training).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import cv2
+import numpy as np
+
+from .metrics import _distance_to
+
+#: regions by distance (px) to the nearest ground-truth edge: (name, lower, upper], inclusive
+REGIONS = (("edge (<= 2 px)", -1.0, 2.0), ("near edge (2-5 px)", 2.0, 5.0),
+           ("interior (> 5 px)", 5.0, np.inf))
+
+
+def local_mean(values: np.ndarray, mask: np.ndarray, size: int = 5) -> np.ndarray:
+    """(H, W) float32 mean of ``values`` over the ``mask`` pixels of each size × size window
+    (0 where the window holds none)."""
+    v = np.where(mask, values, 0.0).astype(np.float32)
+    w = mask.astype(np.float32)
+    k = (size, size)
+    num = cv2.boxFilter(v, -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    den = cv2.boxFilter(w, -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    return num / np.maximum(den, 1.0)
+
+
+def edge_distance(gt_edges: np.ndarray) -> np.ndarray:
+    """(H, W) float32 distance in px to the nearest ground-truth edge pixel (inf: none)."""
+    return _distance_to(np.asarray(gt_edges, bool))
+
+
+class RegionTally:
+    """Per method and region (:data:`REGIONS`): pixels within ``threshold_mm``, MAE, count.
+
+    ``add(estimates, reference, distance)`` per frame (estimates: method -> (H, W) mm, NaN = no
+    answer, scored as a miss; reference: (H, W) mm, NaN = not scored; distance: from
+    :func:`edge_distance`), then ``result()``.
+    """
+
+    def __init__(self, threshold_mm: float = 5.0) -> None:
+        self.threshold_mm = float(threshold_mm)
+        self._sums: dict[str, dict[str, list[float]]] = {}
+
+    def add(self, estimates: Mapping[str, np.ndarray], reference: np.ndarray,
+            distance: np.ndarray) -> None:
+        scored = np.isfinite(reference)
+        for name, est in estimates.items():
+            err = np.abs(np.asarray(est, np.float64) - reference)
+            # strictly within, as :class:`~.metrics.FrameAccumulator` counts
+            hit = np.isfinite(err) & (err < self.threshold_mm)
+            for region, lo, hi in REGIONS:
+                m = scored & (distance > lo) & (distance <= hi)
+                s = self._sums.setdefault(name, {}).setdefault(region, [0.0, 0.0, 0.0, 0.0])
+                s[0] += float(np.count_nonzero(hit & m))
+                finite = m & np.isfinite(err)
+                s[1] += float(err[finite].sum())
+                s[2] += float(np.count_nonzero(finite))
+                s[3] += float(np.count_nonzero(m))
+
+    def result(self) -> dict[str, dict[str, dict[str, float]]]:
+        """region -> method -> {"within", "mae_mm", "pixels"} (NaN where no pixel)."""
+        out: dict[str, dict[str, dict[str, float]]] = {r: {} for r, _, _ in REGIONS}
+        for name, regions in self._sums.items():
+            for region, (hits, err_sum, n_finite, n) in regions.items():
+                out[region][name] = {"within": hits / n if n else float("nan"),
+                                     "mae_mm": err_sum / n_finite if n_finite else float("nan"),
+                                     "pixels": int(n)}
+        return out
+
+
+class MissTally:
+    """Of each method's misses (|error| ≥ ``threshold_mm`` or no answer): how many are
+    noise-limited and how many lie beyond the truncation ``clip_mm`` of F's target."""
+
+    def __init__(self, clip_mm: float | None, threshold_mm: float = 5.0, size: int = 5) -> None:
+        self.clip_mm = None if clip_mm is None else float(clip_mm)
+        self.threshold_mm = float(threshold_mm)
+        self.size = int(size)
+        self._counts: dict[str, list[int]] = {}
+        self.n_scored = self.n_beyond = 0
+
+    def add(self, estimates: Mapping[str, np.ndarray], reference: np.ndarray,
+            calibrated: np.ndarray) -> None:
+        scored = np.isfinite(reference)
+        beyond = np.zeros_like(scored)
+        if self.clip_mm is not None:
+            with np.errstate(invalid="ignore"):
+                beyond = scored & (np.abs(reference - calibrated) > self.clip_mm)
+        self.n_scored += int(scored.sum())
+        self.n_beyond += int(beyond.sum())
+        for name, est in estimates.items():
+            err = np.asarray(est, np.float64) - reference
+            answered = scored & np.isfinite(err)
+            miss = scored & ~(answered & (np.abs(err) < self.threshold_mm))
+            smooth = local_mean(np.where(answered, err, 0.0), answered, self.size)
+            noisy = miss & answered & (np.abs(smooth) <= self.threshold_mm)
+            c = self._counts.setdefault(name, [0, 0, 0])
+            c[0] += int(miss.sum())
+            c[1] += int(noisy.sum())
+            c[2] += int((miss & beyond).sum())
+
+    def result(self) -> dict[str, object]:
+        """``{"clip_mm", "beyond_share" (of scored pixels), "methods": {name: {"misses",
+        "miss_share", "noise_limited", "beyond_clip"}}}`` — the last two as shares of the
+        method's misses."""
+        methods = {}
+        for name, (miss, noisy, beyond) in self._counts.items():
+            methods[name] = {"misses": miss,
+                             "miss_share": miss / self.n_scored if self.n_scored else None,
+                             "noise_limited": noisy / miss if miss else None,
+                             "beyond_clip": beyond / miss if miss and self.clip_mm else None}
+        return {"clip_mm": self.clip_mm,
+                "beyond_share": self.n_beyond / self.n_scored if self.n_scored else None,
+                "methods": methods}
+
+
+__all__ = ["REGIONS", "MissTally", "RegionTally", "edge_distance", "local_mean"]
