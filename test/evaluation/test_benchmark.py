@@ -124,6 +124,18 @@ def test_end_to_end_every_method_and_file(bench_run) -> None:
     assert sorted(cmp["ranking_whole"]) == sorted(m for m in METHODS if m != "F")
     assert cmp["statement"].startswith("Ranking at 5 mm")
     assert data["note"] == "tiny" and len(data["examples"]) == 2
+    # The measurements behind the findings: the regions partition the scored pixels (their
+    # pooled accuracy is the table's), every method's misses are tallied, and the ablation
+    # with the reference's edges ran.
+    regions = data["diagnostics"]["regions_within_5mm"]
+    for m in (*METHODS, "full, reference edges"):
+        hits = sum(r[m]["within"] * r[m]["pixels"] for r in regions.values())
+        pixels = sum(r[m]["pixels"] for r in regions.values())
+        if m in data["table"]:
+            assert hits / pixels == pytest.approx(data["table"][m]["whole_5mm"], abs=1e-9)
+    misses = data["diagnostics"]["misses"]
+    assert set(misses["methods"]) == set(METHODS) and misses["clip_mm"] > 0
+    assert 0.0 <= data["diagnostics"]["ablation_reference_edges"]["whole"]["accuracy"][0] <= 1
     # The calibration (-6 mm) removes the offset: calibrated beats raw.
     assert data["table"]["calibrated"]["whole_5mm"] > data["table"]["raw"]["whole_5mm"]
     files = {p.name for p in out.iterdir()}
@@ -186,9 +198,11 @@ def test_comparison_agrees_with_the_paper_when_the_ranking_matches() -> None:
 
 
 def test_comparison_explains_a_smoother_ranked_above_rfd() -> None:
+    regions = {"edge (<= 2 px)": {"calibrated": {"within": 0.30}, "PD": {"within": 0.20}},
+               "interior (> 5 px)": {"calibrated": {"within": 0.50}, "PD": {"within": 0.49}}}
     evidence = {"noise_share": 0.6, "noise_rms_mm": 4.0, "bias_rms_mm": 3.0,
                 "rfd_training_pixels": 20_000, "val_scores": {"PD": 0.40},
-                "val_calibrated": 0.45, "boundary_share": 0.2}
+                "val_calibrated": 0.45, "boundary_share": 0.2, "regions": regions}
     cmp = compare_with_paper(_acc(TV=(0.58, 0.35), PD=(0.44, 0.25)), evidence)
     assert cmp["ranking_whole"][:3] == ["proposed", "TV", "RFD"]
     second = next(f for f in cmp["findings"] if f["aspect"].startswith("second"))
@@ -202,7 +216,10 @@ def test_comparison_explains_a_smoother_ranked_above_rfd() -> None:
     below_b = next(f for f in cmp["findings"]
                    if f["aspect"] == "every baseline improves on the calibrated range, "
                                      "boundary region")
-    assert not below_b["agrees"] and "PD" in below_b["ours"] and "blur" in below_b["why"]
+    assert not below_b["agrees"] and "PD" in below_b["ours"]
+    # the measured reason: 10 points lost on the edges, 1 in the interior
+    assert "-10.0 points within 2 px" in below_b["why"] and "-1.0 points beyond" in \
+        below_b["why"] and "loses on the edges themselves" in below_b["why"]
     second_b = next(f for f in cmp["findings"] if f["aspect"] == "second at 5 mm, boundary "
                                                                  "region")
     assert second_b["agrees"] and second_b["why"] is None     # RFD 0.40 > TV 0.35
@@ -222,6 +239,31 @@ def test_comparison_flags_a_baseline_beating_the_method() -> None:
     assert cmp["targets"]["proposed_beats_every_baseline_boundary"] is False
     with pytest.raises(InputError):
         compare_with_paper({"raw": (0.1, 0.1)}, {})
+
+
+def _misses(noisy: float, beyond: float) -> dict:
+    return {"clip_mm": 15.0, "beyond_share": 0.1,
+            "methods": {m: {"misses": 100, "miss_share": 0.3, "noise_limited": noisy,
+                            "beyond_clip": beyond} for m in ("proposed", "F", "RFD")}}
+
+
+@pytest.mark.parametrize("noisy,beyond,lever", [
+    (0.1, 0.7, "--target-clip-mm"), (0.7, 0.1, "more averaging"), (0.2, 0.2, "F's fit")])
+def test_a_forest_ahead_is_explained_by_what_the_misses_are_made_of(noisy, beyond, lever):
+    cmp = compare_with_paper(_acc(RFD=(0.70, 0.55)), {"misses": _misses(noisy, beyond)})
+    why = cmp["findings"][0]["why"]
+    assert lever in why and f"{100 * beyond:.1f} % beyond ±15 mm" in why
+    assert "forest matches a small network" not in why   # no unmeasured reasons
+
+
+@pytest.mark.parametrize("oracle,cause", [((0.64, 0.47), "G's edge map is what costs"),
+                                          ((0.58, 0.40), "the filter itself")])
+def test_geodesic_step_below_f_is_explained_by_the_reference_edge_ablation(oracle, cause):
+    cmp = compare_with_paper(_acc(F=(0.62, 0.45), proposed=(0.63, 0.41)),
+                             {"reference_edges": oracle})
+    finding = next(f for f in cmp["findings"] if f["aspect"].startswith("geodesic filtering"))
+    assert not finding["agrees"] and cause in finding["why"]
+    assert f"{100 * oracle[1]:.1f} %" in finding["why"]
 
 
 def test_choice_at_the_grid_edge_is_flagged() -> None:

@@ -38,11 +38,11 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-import cv2
 import numpy as np
 import torch
 
 from ..correction.edges import canny_score_map, ground_truth_edges
+from ..correction.geodesic import geodesic_filter
 from ..correction.pipeline import CorrectionModel, check_frame_pair, correct
 from ..errors import InputError
 from ..frame import ToFFrame
@@ -55,6 +55,7 @@ from .components import (
     ComponentEvaluation,
     g_edge_strength,
 )
+from .diagnosis import MissTally, RegionTally, edge_distance, local_mean
 from .metrics import (
     DEFAULT_THRESHOLDS_MM,
     FrameAccumulator,
@@ -69,6 +70,8 @@ log = logging.getLogger(__name__)
 BASELINE_NAMES: tuple[str, ...] = ("JBF", "WMF", "RF-WF", "RFD", "TV", "PD")
 PROPOSED = "proposed"
 F_ALONE = "F"
+#: the ablation: the full method with the reference's edges in place of G's
+REFERENCE_EDGES = "full, reference edges"
 # Every method in report order; the paper's Fig. 5 compares all of them except F alone.
 METHODS: tuple[str, ...] = ("raw", "calibrated", *BASELINE_NAMES, F_ALONE, PROPOSED)
 PAPER_METHODS: tuple[str, ...] = tuple(m for m in METHODS if m != F_ALONE)
@@ -444,6 +447,93 @@ def _ordinal(n: int) -> str:
     return f"{n}{suffix}"
 
 
+_EDGE_REGION, _INTERIOR_REGION = "edge (<= 2 px)", "interior (> 5 px)"
+
+
+def _miss_text(names: Sequence[str], evidence: Mapping[str, Any]) -> str:
+    """What the misses (≥ 5 mm) of ``names`` are made of, as measured, and which lever that
+    points to; empty without the measurement."""
+    tally = evidence.get("misses")
+    if not tally:
+        return ""
+    per = {n: tally["methods"][n] for n in names if n in tally["methods"]}
+    if not per:
+        return ""
+    clip = tally.get("clip_mm")
+    parts = []
+    for n, m in per.items():
+        noisy = m.get("noise_limited")
+        beyond = m.get("beyond_clip")
+        parts.append(f"{n} {_pct(m['miss_share'])} missed"
+                     + (f", {_pct(noisy)} of them noise-limited" if noisy is not None else "")
+                     + (f", {_pct(beyond)} beyond ±{clip:.0f} mm" if beyond is not None
+                        else ""))
+    text = (" Measured on these frames (noise-limited: the 5×5 local mean error is within "
+            f"5 mm; beyond ±{clip:.0f} mm: |reference − calibrated| exceeds F's target "
+            "truncation, out of F's reach by construction): " + "; ".join(parts) + ".")
+    own = per.get(PROPOSED) or per.get(F_ALONE)
+    if own is None:
+        return text
+    noisy, beyond = own.get("noise_limited") or 0.0, own.get("beyond_clip") or 0.0
+    if beyond >= 0.5:
+        text += (" Most of the proposed method's misses lie beyond F's truncation: a larger "
+                 "target range (--target-clip-mm) is the lever, not more training.")
+    elif noisy >= 0.5:
+        text += (" Most of the proposed method's misses are noise-limited: more averaging, "
+                 "not a better bias estimate, is the lever.")
+    else:
+        text += (" Most of the proposed method's misses are bias within F's reach: F's fit "
+                 "(training data and schedule; docs/results.md has the learning curves) is "
+                 "the lever.")
+    return text
+
+
+def _region_text(names: Sequence[str], evidence: Mapping[str, Any]) -> str:
+    """Accuracy within 2 px of an edge and beyond 5 px for ``names``; empty if not measured."""
+    regions = evidence.get("regions")
+    if not regions:
+        return ""
+    edge, inner = regions.get(_EDGE_REGION, {}), regions.get(_INTERIOR_REGION, {})
+    parts = [f"{n} {_pct(edge[n]['within'])} / {_pct(inner[n]['within'])}"
+             for n in names if n in edge and n in inner]
+    return (" Within 5 mm on pixels ≤ 2 px from an edge / > 5 px from any: "
+            + ", ".join(parts) + ".") if parts else ""
+
+
+def _edge_loss(name: str, evidence: Mapping[str, Any]) -> str:
+    """Where ``name`` loses against calibrated: on the edge or in the interior (measured)."""
+    regions = evidence.get("regions")
+    if not regions:
+        return ""
+    edge, inner = regions.get(_EDGE_REGION, {}), regions.get(_INTERIOR_REGION, {})
+    if name not in edge or "calibrated" not in edge:
+        return ""
+    d_edge = edge[name]["within"] - edge["calibrated"]["within"]
+    d_inner = inner[name]["within"] - inner["calibrated"]["within"]
+    where = ("it loses on the edges themselves (smoothing across the discontinuities)"
+             if d_edge < d_inner else "it loses as much away from the edges")
+    return (f"; against calibrated it moves {100 * d_edge:+.1f} points within 2 px of an edge "
+            f"and {100 * d_inner:+.1f} points beyond 5 px: {where}")
+
+
+def _geodesic_ablation(f_acc: tuple[float, float], full_acc: tuple[float, float],
+                       evidence: Mapping[str, Any]) -> str | None:
+    """Why the geodesic step with G did not add to F, from the reference-edge ablation."""
+    oracle = evidence.get("reference_edges")
+    if oracle is None:
+        return None
+    text = (f"Ablation: with the reference's edges in place of G's, the full method scores "
+            f"{_pct(oracle[0])} / {_pct(oracle[1])} (F alone {_pct(f_acc[0])} / "
+            f"{_pct(f_acc[1])}, with G {_pct(full_acc[0])} / {_pct(full_acc[1])}). ")
+    if oracle[1] >= f_acc[1] and oracle[0] >= f_acc[0]:
+        text += ("With true edges the geodesic step helps, so G's edge map is what costs "
+                 "accuracy here.")
+    else:
+        text += ("Even with true edges the geodesic step does not help: the filter itself "
+                 "(averaging R_F over 81 neighbours) costs accuracy on these frames, not G.")
+    return text + _region_text([F_ALONE, PROPOSED, REFERENCE_EDGES], evidence)
+
+
 def compare_with_paper(acc5: Mapping[str, tuple[float, float]], evidence: Mapping[str, Any]
                        ) -> dict[str, Any]:
     """The ranking at 5 mm and every way it differs from the paper's, with the reason.
@@ -499,17 +589,16 @@ def compare_with_paper(acc5: Mapping[str, tuple[float, float]], evidence: Mappin
             margin = scores[top] - scores[PROPOSED]
             why = (f"{top} is {100 * margin:.1f} points above the proposed method.")
             if top == "RFD":
-                why += (" RFD regresses the same target from the same patch features as F; a "
-                        "forest matches a small network when the network has seen little "
-                        "data." + f_training())
+                why += _miss_text([PROPOSED, F_ALONE, "RFD"], evidence) + f_training()
             elif top in SMOOTHING_BASELINES:
-                why += (" " + noise_txt + " A smoothing filter removes noise that F, which "
-                        "predicts each pixel from its own patch, leaves; G's geodesic filter "
-                        "averages only within its K = 81 neighbours.")
+                why += (" " + noise_txt + _miss_text([PROPOSED, top], evidence))
             elif top == "calibrated":
-                why += " F's correction does not transfer to these test frames." + f_training()
+                why += (_region_text(["calibrated", F_ALONE, PROPOSED], evidence)
+                        + _miss_text([PROPOSED, F_ALONE], evidence) + f_training())
         findings.append({"aspect": f"best method at 5 mm, {region}", "paper": PROPOSED,
                          "ours": top, "agrees": agrees, "why": why})
+
+    val, val_cal = evidence.get("val_scores", {}), evidence.get("val_calibrated")
 
     # 2. RFD second (the paper's ranking), in each region.
     for region, ranking, scores in (("whole image", rank_w, whole),
@@ -530,14 +619,15 @@ def compare_with_paper(acc5: Mapping[str, tuple[float, float]], evidence: Mappin
                          f"{', '.join(ahead)} {'rank' if len(ahead) > 1 else 'ranks'} "
                          "above it."]
             smoothers = [m for m in ahead if m in SMOOTHING_BASELINES]
-            if smoothers and noise_txt:
-                parts.append(noise_txt + " Smoothing filters (" + ", ".join(smoothers) + ") "
-                             "average that noise away; RFD predicts the distortion of each pixel "
-                             "from its own noisy patch and keeps the noise. In the paper's DS325 "
-                             "data the multipath bias dominated, so smoothing gained little.")
+            if smoothers:
+                parts.append(noise_txt + _miss_text(["RFD", *smoothers], evidence))
             if "calibrated" in ahead:
-                parts.append("RFD falls below the calibrated range: its forest does not "
-                             "generalise from the fit frames to the test objects.")
+                parts.append("RFD falls below the calibrated range on these frames, though "
+                             "it was chosen on validation frames"
+                             + (f" where it scored {_pct(val['RFD'])} (calibrated "
+                                f"{_pct(val_cal)})" if "RFD" in val and val_cal is not None
+                                else "") + "."
+                             + _region_text(["calibrated", "RFD"], evidence))
             pixels = evidence.get("rfd_training_pixels")
             if pixels is not None:
                 parts.append(f"RFD was fitted on {pixels:,} sampled pixels of the fit split "
@@ -547,7 +637,6 @@ def compare_with_paper(acc5: Mapping[str, tuple[float, float]], evidence: Mappin
                          "ours": second, "agrees": agrees, "why": why})
 
     # 3. Every baseline above calibrated (marginally for all but RFD), in each region.
-    val, val_cal = evidence.get("val_scores", {}), evidence.get("val_calibrated")
     for region, scores in (("whole image", whole), ("boundary region", bound)):
         below = [m for m in baselines if scores[m] < scores["calibrated"]]
         why = None
@@ -558,9 +647,7 @@ def compare_with_paper(acc5: Mapping[str, tuple[float, float]], evidence: Mappin
                     reasons.append(
                         f"{m}: {_pct(scores[m])} vs calibrated {_pct(scores['calibrated'])} "
                         f"near boundaries ({_pct(whole[m])} vs {_pct(whole['calibrated'])} on "
-                        "the whole image): it smooths across depth discontinuities, which the "
-                        "paper also observed ('the competing algorithms tended to blur the "
-                        "boundaries')")
+                        "the whole image)" + _edge_loss(m, evidence))
                 elif m in val and val_cal is not None and val[m] <= val_cal:
                     reasons.append(f"{m}: no setting of its grid beat calibration even on the "
                                    f"validation frames ({_pct(val[m])} vs {_pct(val_cal)}); "
@@ -602,9 +689,8 @@ def compare_with_paper(acc5: Mapping[str, tuple[float, float]], evidence: Mappin
             "ours": (f"F {_pct(f_w)} / {_pct(f_b)} -> full {_pct(whole[PROPOSED])} / "
                      f"{_pct(bound[PROPOSED])} (whole / boundary)"),
             "agrees": agrees,
-            "why": None if agrees else "the geodesic filter averages R_F across places where "
-                                       "G missed a boundary (or blurs fine structure G did not "
-                                       "mark); see the edge precision/recall"})
+            "why": None if agrees else _geodesic_ablation(
+                (f_w, f_b), (whole[PROPOSED], bound[PROPOSED]), evidence)})
 
     # 6. The network F against the forest RFD on the same features and target (the paper's
     # argument for a network: "Comparison with the RFD justified the use of NNs").
@@ -619,9 +705,7 @@ def compare_with_paper(acc5: Mapping[str, tuple[float, float]], evidence: Mappin
                    + (f" (grid-searched, chose {chosen}" if chosen else "")
                    + (f", fitted on {pixels:,} pixels)" if chosen and pixels is not None
                       else ")" if chosen else "") + "." + f_training()
-                   + " With this little training the small network has no edge over a deep "
-                     "forest on the same features; the geodesic step with G is what keeps "
-                     "the full method ahead.")
+                   + _miss_text([F_ALONE, "RFD"], evidence))
         findings.append({
             "aspect": "F alone (network) vs RFD (forest) on the same features",
             "paper": "F better (the paper's argument for a network)",
@@ -664,12 +748,7 @@ class NoiseTally:
         m = np.isfinite(e) & ~boundary
         if not m.any():
             return
-        e0 = np.where(m, e, 0.0).astype(np.float32)
-        w = m.astype(np.float32)
-        k = (self.size, self.size)
-        num = cv2.boxFilter(e0, -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
-        den = cv2.boxFilter(w, -1, k, normalize=False, borderType=cv2.BORDER_CONSTANT)
-        smooth = num[m] / np.maximum(den[m], 1.0)
+        smooth = local_mean(e, m, self.size)[m]
         self.noise_sq += float(np.square(e[m] - smooth).sum())
         self.bias_sq += float(np.square(smooth).sum())
         self.n += int(m.sum())
@@ -870,6 +949,9 @@ def run_benchmark(model: CorrectionModel, train_frames: Iterable[ToFFrame],
         else set(range(n_total))
     examples: list[dict[str, Any]] = []
     n_boundary = n_eval = 0
+    regions = RegionTally(RANK_THRESHOLD_MM)
+    misses = MissTally(float(model.range_net.target_clip_mm), RANK_THRESHOLD_MM)
+    ablation = FrameAccumulator(cfg.thresholds)
     say(f"running {len(methods)} methods on {n_total} test frames")
     with _bar(n_total, "benchmark test frames", cfg.progress) as bar:
         for index, frame in enumerate(tests):
@@ -898,6 +980,10 @@ def run_benchmark(model: CorrectionModel, train_frames: Iterable[ToFFrame],
             for m in methods:
                 acc[m].add(est[m], ref, mask)
                 seconds[m].append(times[m])
+            oracle = _with_reference_edges(model, full.range_f_mm, gt, full.range_mm)
+            ablation.add(oracle, ref, mask)
+            regions.add({**est, REFERENCE_EDGES: oracle}, ref, edge_distance(gt))
+            misses.add(est, ref, cal)
             stages = {"raw": r, "calibrated": full.calibrated_mm, "F": full.range_f_mm,
                       "geodesic+G": g_only.range_mm, "full": full.range_mm}
             for s in STAGES:
@@ -927,6 +1013,7 @@ def run_benchmark(model: CorrectionModel, train_frames: Iterable[ToFFrame],
     diagnostics = {"calibrated_error_away_from_boundaries": noise.to_dict(),
                    "boundary_share": n_boundary / n_eval if n_eval else None,
                    "val_calibrated_within_5mm": val_calibrated}
+    oracle_eval = ablation.result()
     final = model.metadata.get("final", {}) if isinstance(model.metadata, dict) else {}
     train_cfg = model.metadata.get("train_config", {}) if isinstance(model.metadata,
                                                                      dict) else {}
@@ -936,7 +1023,12 @@ def run_benchmark(model: CorrectionModel, train_frames: Iterable[ToFFrame],
                 "rfd_training_pixels": tuned["RFD"].n_training_pixels() if "RFD" in tuned
                 else None,
                 "rfd_chosen": tuned["RFD"].chosen if "RFD" in tuned else None,
-                "f_training_patches": final.get("patches"), "f_epochs": train_cfg.get("epochs")}
+                "f_training_patches": final.get("patches"), "f_epochs": train_cfg.get("epochs"),
+                "regions": regions.result(), "misses": misses.result(),
+                "reference_edges": (oracle_eval.whole.at(RANK_THRESHOLD_MM),
+                                    oracle_eval.boundary.at(RANK_THRESHOLD_MM))}
+    diagnostics.update(regions_within_5mm=evidence["regions"], misses=evidence["misses"],
+                       ablation_reference_edges=oracle_eval.to_dict())
     acc5 = {m: (ev.whole.at(RANK_THRESHOLD_MM), ev.boundary.at(RANK_THRESHOLD_MM))
             for m, ev in evaluations.items()}
     comparison = compare_with_paper(acc5, evidence)
@@ -949,6 +1041,16 @@ def run_benchmark(model: CorrectionModel, train_frames: Iterable[ToFFrame],
                            "for every method after raw; the machine may be shared"}
     return BenchmarkResult(evaluations, medians, tuned, components, split, comparison,
                            diagnostics, examples, n_total, skipped, timings, info)
+
+
+def _with_reference_edges(model: CorrectionModel, range_f_mm: np.ndarray, gt_edges: np.ndarray,
+                          full_mm: np.ndarray) -> np.ndarray:
+    """(H, W) float32 the full method's output had G found exactly the reference's edges: R_F
+    geodesically filtered over ``gt_edges`` with the model's filter constants (NaN where the
+    full method gives no answer)."""
+    p = model.geodesic
+    out = geodesic_filter(range_f_mm, gt_edges, k=p.k, sigma=p.sigma, step=p.step)
+    return np.where(np.isfinite(full_mm), out, np.nan).astype(np.float32)
 
 
 def _example(index: int, reference: np.ndarray, amplitude: np.ndarray,
