@@ -77,7 +77,12 @@ def test_calibrate_train_correct_evaluate(files: dict[str, Path],
     # the regions by distance to the edges split the whole image's scored pixels
     whole = results["stages"]["full"]["whole"]["n_pixels"]
     assert sum(r["full"]["pixels"] for r in results["regions"].values()) == whole
-    assert 0.0 <= results["g_operating_point"]["precision"] <= 1.0
+    point = results["g_operating_point"]
+    assert 0.0 <= point["precision"] <= 1.0
+    # per orientation: the reference edges of every group add up to all reference edges
+    by = point["by_orientation"]
+    assert set(by) == {"0°", "45°", "90°", "135°"}
+    assert sum(g["n_gt"] for g in by.values()) == results["edges"]["G"]["n_gt"]
     # Calibration removes the simulated systematic error on these scenes.
     summary = results["summary_5mm"]
     assert summary["calibrated"]["whole"] > summary["raw"]["whole"]

@@ -4,7 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from tof_mpd_ros.evaluation.diagnosis import REGIONS, MissTally, RegionTally, edge_distance
+from tof_mpd_ros.evaluation.diagnosis import (
+    REGIONS,
+    MissTally,
+    RegionTally,
+    edge_distance,
+    edges_by_orientation,
+)
 from tof_mpd_ros.evaluation.metrics import FrameAccumulator
 
 
@@ -54,3 +60,21 @@ def test_miss_tally_tells_noise_from_bias_and_finds_what_f_cannot_reach() -> Non
     # ±8 mm alternating: every pixel misses, the 5×5 mean is within 5 mm everywhere
     assert noisy["miss_share"] == 1.0 and noisy["noise_limited"] == 1.0
     assert good["misses"] == 0 and good["noise_limited"] is None
+
+
+def test_edges_by_orientation_counts_each_direction_and_the_named_group() -> None:
+    gt = np.zeros((40, 50), bool)
+    gt_group = np.full(gt.shape, -1)
+    gt[5:35, 10], gt_group[5:35, 10] = True, 0       # a vertical edge: normal along x
+    gt[30, 20:40], gt_group[30, 20:40] = True, 2     # a horizontal edge: normal along y
+    pred = np.zeros(gt.shape, bool)
+    group = np.full(gt.shape, -1)
+    pred[5:35, 11], group[5:35, 11] = True, 0        # found, 1 px off, named right
+    pred[30, 20:30], group[30, 20:30] = True, 0      # half found, named wrong
+    pred[2, 30:40], group[2, 30:40] = True, 2        # spurious
+    out = edges_by_orientation([pred], [group], [gt], [gt_group])
+    assert out["0°"] == {"precision": 1.0, "recall": 1.0, "same_group": 30 / 40,
+                         "n_pred": 40, "n_gt": 30}
+    # 12 of 20: columns 20-29 and the two within 2 px past the last prediction
+    assert out["90°"]["recall"] == 12 / 20 and out["90°"]["precision"] == 0.0
+    assert out["45°"]["precision"] is None and out["45°"]["recall"] is None

@@ -12,6 +12,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -21,7 +22,7 @@ from ..correction.encoding import encode_frame
 from ..correction.networks import boundary_scores
 from ..correction.pipeline import CorrectionModel, correct
 from ..frame import ToFFrame
-from .diagnosis import RegionTally, edge_distance
+from .diagnosis import RegionTally, edge_distance, edges_by_orientation
 from .metrics import (
     DEFAULT_THRESHOLDS_MM,
     EdgePRCurve,
@@ -49,7 +50,10 @@ class ComponentEvaluation:
             stage: fraction within 5 mm, MAE (mm) and pixel count — what F and the geodesic
             step do at the edges, near them and in the interior.
         g_operating_point: precision / recall (2 px tolerance) of the binary edge map the
-            full pipeline uses (G's thresholds and hysteresis), not a sweep.
+            full pipeline uses (G's thresholds and hysteresis), not a sweep; and
+            ``by_orientation`` (:func:`.diagnosis.edges_by_orientation`): the same per
+            orientation group of the edge normal, with how often G's winning head names the
+            nearest reference edge's group.
     """
 
     stages: dict[str, FrameEvaluation]
@@ -58,7 +62,7 @@ class ComponentEvaluation:
     n_frames: int
     examples: list[dict[str, np.ndarray]] = field(default_factory=list)
     regions: dict[str, dict[str, dict[str, float]]] = field(default_factory=dict)
-    g_operating_point: dict[str, float] = field(default_factory=dict)
+    g_operating_point: dict[str, Any] = field(default_factory=dict)
 
     def summary(self, threshold_mm: float = 5.0) -> dict[str, dict[str, float]]:
         """Per stage: fraction within ``threshold_mm`` (whole, boundary), MAE, RMSE."""
@@ -116,6 +120,8 @@ def evaluate_model(model: CorrectionModel, frames: Iterable[ToFFrame], *,
     estimates: dict[str, list[np.ndarray]] = {s: [] for s in STAGES}
     references, masks, g_scores, canny_scores, gts, valids = [], [], [], [], [], []
     g_maps: list[np.ndarray] = []
+    g_groups: list[np.ndarray] = []
+    gt_groups: list[np.ndarray] = []
     examples: list[dict[str, np.ndarray]] = []
     seconds: list[float] = []
     for frame in frames:
@@ -129,13 +135,16 @@ def evaluate_model(model: CorrectionModel, frames: Iterable[ToFFrame], *,
                  "geodesic+G": g_only.range_mm, "full": full.range_mm}
         for name in STAGES:
             estimates[name].append(stage[name])
-        gt, _ = ground_truth_edges(frame.reference_mm)
+        gt, gt_group = ground_truth_edges(frame.reference_mm)
         references.append(frame.reference_mm)
         masks.append(boundary_region(frame.reference_mm, edges=gt))
         gts.append(gt)
         g_maps.append(full.edges)
+        gt_groups.append(gt_group)
         valids.append(np.isfinite(frame.reference_mm))
-        g_scores.append(g_edge_strength(model, full.calibrated_mm, frame.amplitude))
+        probs = g_probabilities(model, full.calibrated_mm, frame.amplitude)
+        g_groups.append(np.argmax(probs, axis=0))
+        g_scores.append(edge_map_from_responses(probs)[1])
         canny_scores.append(canny_score_map(frame.range_mm, highs=np.array(CANNY_HIGHS_MM)))
         if len(examples) < n_examples:
             examples.append({"reference": frame.reference_mm, **stage,
@@ -149,8 +158,10 @@ def evaluate_model(model: CorrectionModel, frames: Iterable[ToFFrame], *,
     regions = region_accuracy(estimates, references, gts)
     point = edge_precision_recall([m.astype(np.float32) for m in g_maps], gts, [0.5],
                                   valid=valids) if g_maps else None
-    operating = {} if point is None else {"precision": float(point.precision[0]),
-                                          "recall": float(point.recall[0])}
+    operating = {} if point is None else {
+        "precision": float(point.precision[0]), "recall": float(point.recall[0]),
+        "by_orientation": edges_by_orientation(
+            [m & v for m, v in zip(g_maps, valids, strict=True)], g_groups, gts, gt_groups)}
     return ComponentEvaluation(stages, edges, median, len(references), examples, regions,
                                operating)
 

@@ -4,6 +4,8 @@ The benchmark's findings quote these instead of reasoning about causes:
 
 * :class:`RegionTally` — accuracy by distance to the ground-truth edges (on the edge, near it,
   interior), so "it blurs the boundaries" is a number in the ≤ 2 px region;
+* :func:`edges_by_orientation` — G's edge map against the reference's edges per orientation
+  group (which directions G finds, and whether it names them right);
 * :class:`MissTally` — of a method's misses (|error| ≥ 5 mm or no answer), the share that is
   *noise-limited* (the local mean error over 5 × 5 valid pixels is within 5 mm: averaging would
   have fixed it) and the share *beyond the truncation* of F's target (|reference − calibrated|
@@ -12,10 +14,11 @@ The benchmark's findings quote these instead of reasoning about causes:
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 
 import cv2
 import numpy as np
+from scipy import ndimage
 
 from .metrics import _distance_to
 
@@ -79,6 +82,53 @@ class RegionTally:
         return out
 
 
+#: orientation groups of the edge normals (:func:`~tof_mpd_ros.correction.edges.orientation_group`)
+ORIENTATIONS = ("0°", "45°", "90°", "135°")
+
+
+def edges_by_orientation(pred_edges: Sequence[np.ndarray], pred_groups: Sequence[np.ndarray],
+                         gt_edges: Sequence[np.ndarray], gt_groups: Sequence[np.ndarray], *,
+                         tolerance_px: float = 2.0) -> dict[str, dict[str, float | int | None]]:
+    """Precision and recall of an edge map per orientation group of the edge normal.
+
+    Args:
+        pred_edges: N (H, W) bool predicted edges (G's hysteresis map).
+        pred_groups: N (H, W) int group 0..3 of each prediction (G's winning head).
+        gt_edges: N (H, W) bool reference edges; gt_groups: N (H, W) int their groups.
+        tolerance_px: a prediction and a reference edge match within this distance.
+
+    Returns:
+        group name -> {"precision": predictions of the group within tolerance of any reference
+        edge, "recall": reference edges of the group within tolerance of any prediction,
+        "same_group": of the matched predictions, the share whose group is that of the nearest
+        reference edge, "n_pred", "n_gt"} (None where there is nothing to count).
+    """
+    counts = np.zeros((4, 5), np.int64)   # n_pred, ok_pred, same, n_gt, ok_gt
+    for pe, pg, ge, gg in zip(pred_edges, pred_groups, gt_edges, gt_groups, strict=True):
+        pe, ge = np.asarray(pe, bool), np.asarray(ge, bool)
+        if ge.any():
+            dist, (iy, ix) = ndimage.distance_transform_edt(~ge, return_indices=True)
+            nearest = np.asarray(gg)[iy, ix]
+        else:
+            dist, nearest = np.full(ge.shape, np.inf), np.full(ge.shape, -1)
+        near_pred = (_distance_to(pe) <= tolerance_px) if pe.any() else np.zeros_like(pe)
+        matched = pe & (dist <= tolerance_px)
+        for g in range(4):
+            mine = pe & (np.asarray(pg) == g)
+            counts[g] += (mine.sum(), (mine & matched).sum(),
+                          (mine & matched & (nearest == g)).sum(),
+                          (ge & (np.asarray(gg) == g)).sum(),
+                          (ge & (np.asarray(gg) == g) & near_pred).sum())
+    out = {}
+    for g, name in enumerate(ORIENTATIONS):
+        n_pred, ok_pred, same, n_gt, ok_gt = (int(x) for x in counts[g])
+        out[name] = {"precision": ok_pred / n_pred if n_pred else None,
+                     "recall": ok_gt / n_gt if n_gt else None,
+                     "same_group": same / ok_pred if ok_pred else None,
+                     "n_pred": n_pred, "n_gt": n_gt}
+    return out
+
+
 class MissTally:
     """Of each method's misses (|error| ≥ ``threshold_mm`` or no answer): how many are
     noise-limited and how many lie beyond the truncation ``clip_mm`` of F's target."""
@@ -125,4 +175,5 @@ class MissTally:
                 "methods": methods}
 
 
-__all__ = ["REGIONS", "MissTally", "RegionTally", "edge_distance", "local_mean"]
+__all__ = ["ORIENTATIONS", "REGIONS", "MissTally", "RegionTally", "edge_distance",
+           "edges_by_orientation", "local_mean"]
