@@ -26,8 +26,11 @@ def register(subparsers: Any) -> None:
                     "busy cores (~2 min for the 160x144 Azure Kinect frame), growing with the "
                     "pixel count (interreflection ~ pixels^2).")
     p.add_argument("real", help="recording directory, .mcap or .npz with references, or the "
-                                "Azure Kinect sample folder (plane-fit reference)")
+                                "Azure Kinect sample folder or the ADI ToF folder (plane-fit "
+                                "reference)")
     p.add_argument("--sim-config", help="simulator config JSON to diagnose (default nominal)")
+    p.add_argument("--mode", type=int, default=3,
+                   help="camera mode of an ADI ToF folder (3, long range; 2, short range)")
     p.add_argument("-o", "--out", required=True, help="output directory (created)")
     p.add_argument("--max-effects", type=int, default=2, help="most effects to select (2)")
     p.add_argument("--reference-noise-mm", type=float, default=0.5,
@@ -68,12 +71,21 @@ def _mismatch(args: argparse.Namespace) -> int:
 
     from ..mismatch import analyse, load_frames, write_report
     from ..mismatch.fit import CANDIDATES
-    from ..mismatch.realdata import azure_kinect_config, is_azure_kinect_dir
+    from ..mismatch.realdata import (
+        adi_config,
+        adi_frame,
+        azure_kinect_config,
+        is_adi_dir,
+        is_azure_kinect_dir,
+    )
 
-    frames = load_frames(args.real)
+    adi = is_adi_dir(args.real)
+    frames = [adi_frame(args.real, args.mode)] if adi else load_frames(args.real)
     config = _load_config(args.sim_config)
     if config is None and is_azure_kinect_dir(args.real):
         config = azure_kinect_config()
+    if config is None and adi:
+        config = adi_config()
     total = len(CANDIDATES) * max(args.max_effects, 1)
     with tqdm(total=total, desc="fitting candidates", file=sys.stderr) as bar:
         analysis = analyse(frames, config, max_effects=args.max_effects,
