@@ -40,10 +40,13 @@ def _scene_from(x_mm: float, rotvec: np.ndarray, shift_mm: np.ndarray) -> list:
 
 
 def make_sweep(effects: dict[str, dict], *, n_frames: int = 6, seed: int = 0,
-               intrinsics: Intrinsics = SMALL) -> list[ToFFrame]:
-    """Frames carrying ``effects`` (name -> params; hand_eye and time_offset are physical)."""
+               intrinsics: Intrinsics = SMALL, camera: ToFConfig | None = None,
+               amplitude_scale: float = 1.0) -> list[ToFFrame]:
+    """Frames carrying ``effects`` (name -> params; hand_eye and time_offset are physical) on
+    ``camera`` (default the nominal cell), its amplitude reported in units
+    ``amplitude_scale`` × the simulator's."""
     rng = np.random.default_rng(seed)
-    cfg = ToFConfig.nominal()
+    cfg = ToFConfig.nominal() if camera is None else camera
     for name, params in effects.items():
         if name not in ("hand_eye", "time_offset"):
             cfg = cfg.with_effect(name, enabled=True, **params)
@@ -61,7 +64,7 @@ def make_sweep(effects: dict[str, dict], *, n_frames: int = 6, seed: int = 0,
         ref = truth.range_mm + rng.normal(0.0, 0.5, truth.range_mm.shape)
         pose = np.eye(4)
         pose[0, 3] = camera_x_mm(t) * 1e-3
-        frames.append(ToFFrame(meas.range_mm, meas.amplitude, intrinsics,
+        frames.append(ToFFrame(meas.range_mm, meas.amplitude * amplitude_scale, intrinsics,
                                mod_freq_hz=cfg.mod_freq_hz, reference_mm=ref,
                                stamp_ns=round(t * 1e9), pose=pose))
     return frames

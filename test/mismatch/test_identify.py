@@ -16,8 +16,9 @@ import pytest
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.mismatch import analyse
 from tof_mpd_ros.mismatch.analysis import rank
-from tof_mpd_ros.mismatch.fit import FitResult
+from tof_mpd_ros.mismatch.fit import CANDIDATES, FitResult
 from tof_mpd_ros.mismatch.predict import noise_std_mm
+from tof_mpd_ros.mismatch.profile import PROFILE_EFFECTS
 from tof_mpd_ros.sim.tof import ToFConfig
 
 NOMINAL = ToFConfig.nominal()
@@ -58,9 +59,15 @@ LARGER = {"multipath": {"intrinsics": Intrinsics.from_fov(80, 60, 74.0)}}
 
 
 def _check(sweep, effect: str) -> None:
+    """A camera effect is found as the camera's profile and nothing is named on top; a scene,
+    pose or timing effect is named on top of an empty profile."""
     params, check = CASES[effect]
     result = analyse(sweep({effect: params}, **LARGER.get(effect, {})), max_effects=1)
-    assert result.selected == [effect], [(r.effect, round(r.score, 1)) for r in result.rounds[0]]
+    rounds = [[(r.effect, round(r.score, 1)) for r in rnd] for rnd in result.rounds]
+    if effect in PROFILE_EFFECTS:
+        assert result.profile[:1] == [effect] and result.selected == [], rounds
+    else:
+        assert result.profile == [] and result.selected == [effect], rounds
     assert check(result.parameters[effect], result), result.parameters
     assert result.metrics["interior_excess_rmse_after_mm"] <= \
         result.metrics["interior_excess_rmse_before_mm"] + 1e-9
@@ -68,10 +75,14 @@ def _check(sweep, effect: str) -> None:
 
 def test_control_is_none(sweep):
     result = analyse(sweep({}), max_effects=1)
-    assert result.selected == []
-    assert all(r.score <= 5.0 or r.t_stat <= 3.0 for r in result.rounds[0])
+    assert result.selected == [] and result.profile == [] and result.unexplained == []
+    # one round for the camera's profile, one for the physics on top: nothing significant
+    assert len(result.rounds) == 2
+    assert all(r.score <= 5.0 or r.t_stat <= 3.0 for rnd in result.rounds for r in rnd)
     # and the evidence still ranks every candidate
-    assert len(result.rounds[0]) == 12
+    assert sorted(r.effect for rnd in result.rounds for r in rnd) == sorted(CANDIDATES)
+    # the nominal camera's amplitude is in the simulator's units: the grey world keeps them
+    assert result.profile_facts["amplitude_scale"] == pytest.approx(1.0, abs=0.3)
 
 
 @pytest.mark.parametrize("effect", FAST)

@@ -50,6 +50,11 @@ def register(subparsers: Any) -> None:
     b.add_argument("--cases", type=int, default=8, help="number of cases (8)")
     b.add_argument("--seed", type=int, default=0, help="seed of the whole benchmark (0)")
     b.add_argument("--frames", type=int, default=6, help="frames per case (6)")
+    b.add_argument("--base", choices=("nominal", "profile", "pathtrace"), default="nominal",
+                   help="the camera the concealed effects sit on: the nominal cell, a random "
+                        "camera profile per case (noise, level, pixel pattern, wiggle, "
+                        "amplitude bias and units, modulation frequency), or such a camera "
+                        "with path-traced light transport ([pathtrace] extra)")
     b.add_argument("--merge", nargs="+", metavar="RUN_DIR",
                    help="instead of running: score finished benchmark directories together")
     b.add_argument("-o", "--out", required=True, help="output directory (created)")
@@ -113,7 +118,7 @@ def _benchmark(args: argparse.Namespace) -> int:
         return 0
     with tqdm(total=args.cases, desc="benchmark cases", file=sys.stderr) as bar:
         doc = run_benchmark(args.cases, args.seed, args.out, n_frames=args.frames,
-                            progress=lambda msg: bar.update(1))
+                            base=args.base, progress=lambda msg: bar.update(1))
     print(text_table(doc["cases"], doc["summary"]))
     print(json.dumps(doc["summary"], indent=2))
     return 0

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -21,10 +21,19 @@ from ..frame import ToFFrame
 from ..sim.tof import ToFConfig
 from .data import camera_motion, check_frames, split_frames
 from .features import DESCRIPTORS, all_descriptors, edge_jump_mm
-from .fit import CANDIDATES, FitResult, Problem, fit_effect
+from .fit import (
+    CANDIDATES,
+    FitResult,
+    Problem,
+    fit_effect,
+    free_params,
+    plain_params,
+    score_fit,
+)
 from .likelihood import REFERENCE_NOISE_MM, tile_t_statistic, total_sigma
 from .locate import describe_stratum, locate, strata
 from .predict import FramePredictor
+from .profile import PROFILE_EFFECTS, adopt_recording, describe_profile
 
 _log = logging.getLogger(__name__)
 
@@ -64,7 +73,9 @@ class Analysis:
     """Result of :func:`analyse` (arrays are per held-out frame).
 
     Attributes:
-        selected: effects found, strongest first (empty = no significant mismatch).
+        selected: effects found, strongest first (empty = no significant mismatch): scene,
+            pose and timing physics in the one-shot workflow (the camera's profile is
+            ``profile``); everything that changed, the profile included, when monitoring.
         rounds: per greedy round, every candidate's fit, best score first.
         evidence: effect -> evidence in words (from the first round it was ranked in).
         config_before, config_after: the simulator config given and the fitted one.
@@ -73,6 +84,15 @@ class Analysis:
         test_frames: indices of the held-out frames shown.
         residual_before, residual_after: (H, W) float64 real − predicted range, mm.
         sigma_before, sigma_after: (H, W) float64 predicted residual std, mm.
+        workflow: ``"one-shot"`` (no config given: the camera's profile is fitted first) or
+            ``"monitor"`` (a config from an earlier run: only what changed since).
+        profile: profile effects fitted in the one-shot workflow, strongest first.
+        profile_facts: what the recording states and the amplitude units chosen
+            (:func:`.profile.adopt_recording`).
+        profile_words: the camera's profile in words, relative to the nominal cell.
+        unexplained: candidates that fitted best but are not taken, with why (a parameter at
+            the edge of its range: the model does not explain this) and where the residual
+            sits.
     """
 
     selected: list[str]
@@ -87,12 +107,18 @@ class Analysis:
     residual_after: list[np.ndarray] = field(default_factory=list)
     sigma_before: list[np.ndarray] = field(default_factory=list)
     sigma_after: list[np.ndarray] = field(default_factory=list)
+    workflow: str = "one-shot"
+    profile: list[str] = field(default_factory=list)
+    profile_facts: dict[str, Any] = field(default_factory=dict)
+    profile_words: list[str] = field(default_factory=list)
+    unexplained: list[dict[str, Any]] = field(default_factory=list)
 
     @property
     def parameters(self) -> dict[str, dict[str, float]]:
-        """Fitted parameters of each selected effect (the winner of its round)."""
-        return {rnd[0].effect: rnd[0].parameters for rnd in self.rounds
-                if rnd and rnd[0].effect in self.selected}
+        """Fitted parameters of every effect taken (profile and selected), as in the final
+        model (a later round may have refitted the profile)."""
+        return {e: plain_params(self.config_after, e)
+                for e in dict.fromkeys([*self.profile, *self.selected])}
 
     def ranking(self) -> list[dict[str, Any]]:
         """First-round ranking (then later rounds' winners), JSON-ready."""
@@ -173,7 +199,9 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
         MismatchError: no frames, missing references, or nothing to compare.
     """
     check_frames(frames)
-    base = ToFConfig.nominal() if config is None else config
+    monitor = config is not None
+    given = ToFConfig.nominal() if config is None else config
+    base, facts = adopt_recording(frames, given, keep_units=monitor)
     motions = camera_motion(frames)
     predictors = [FramePredictor(f, base, frame_index=i, motion=m)
                   for i, (f, m) in enumerate(zip(frames, motions, strict=True))]
@@ -191,36 +219,198 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
     residual0, sigma0 = _residuals(problem, None)
     location = locate(descriptors, residual0, sigma0)
 
-    selected: list[str] = []
-    rounds: list[list[FitResult]] = []
-    evidence: dict[str, str] = {}
-    for k in range(max_effects):
-        results = []
-        for name in candidates:
-            if name in selected:
-                continue
-            results.append(fit_effect(problem, name))
-            if progress:
-                progress(name)
-        results = rank(results, problem)
-        rounds.append(results)
+    search = _Search(problem, descriptors, location, min_score, min_t, progress)
+    profile: list[str] = []
+    if not monitor:
+        # the camera first: what every camera has its own values of, then the physics on top
+        profile = search.greedy([c for c in candidates if c in PROFILE_EFFECTS],
+                                len(PROFILE_EFFECTS))
+        search.refit = profile
+        # the camera's level stays a free profile parameter while physics is named on top
+        search.problem = replace(search.problem, free_level=True, _base_cost={}, _level=None)
+        scene = [c for c in candidates if c not in PROFILE_EFFECTS]
+    else:
+        scene = list(candidates)
+    selected = search.greedy(scene, max_effects) if max_effects > 0 else []
+    # what the physics on top took back from the camera's profile leaves it where it was
+    profile = search.confirm(profile, base)
+    analysis = _finish(search.problem, given, selected, search.rounds, search.evidence,
+                       location, predictors, descriptors)
+    analysis.workflow = "monitor" if monitor else "one-shot"
+    analysis.profile = profile
+    analysis.profile_facts = facts
+    analysis.profile_words = describe_profile(ToFConfig.nominal(), search.problem.base, facts,
+                                              profile)
+    analysis.unexplained = search.unexplained
+    return analysis
+
+
+@dataclass
+class _Search:
+    """Greedy naming over rounds that share one growing model (see :func:`analyse`)."""
+
+    problem: Problem
+    descriptors: Sequence[dict[str, np.ndarray]]
+    location: dict[str, Any]
+    min_score: float
+    min_t: float
+    progress: Callable[[str], None] | None
+    rounds: list[list[FitResult]] = field(default_factory=list)
+    evidence: dict[str, str] = field(default_factory=dict)
+    unexplained: list[dict[str, Any]] = field(default_factory=list)
+    #: effects refitted with every later candidate (the camera's profile)
+    refit: list[str] = field(default_factory=list)
+    #: every effect taken so far, in order
+    taken: list[str] = field(default_factory=list)
+
+    def greedy(self, candidates: Sequence[str], limit: int) -> list[str]:
+        """Take up to ``limit`` of ``candidates``, one per round, while one is significant."""
+        taken: list[str] = []
+        for _ in range(limit):
+            k = len(self.rounds)
+            results = []
+            for name in candidates:
+                if name in taken:
+                    continue
+                results.append(self._with_refit(fit_effect(self.problem, name)))
+                if self.progress:
+                    self.progress(name)
+            results = rank(results, self.problem)
+            self.rounds.append(results)
+            for r in results:
+                self.evidence[f"{k + 1}:{r.effect}"] = explain(self.problem, r,
+                                                               self.descriptors)
+            # once a fit is taken, the residual holds that fit's imperfections too
+            threshold = (self.min_score if not self.taken
+                         else max(self.min_score, MIN_SCORE_LATER))
+            best = self._first_explained(results, threshold, k)
+            if best is None:
+                break
+            taken.append(best.effect)
+            self.taken.append(best.effect)
+            _log.info("round %d: %s (score %.1f, t %.1f)", k + 1, best.effect, best.score,
+                      best.t_stat)
+            self._rebase(best.config)
+        return taken
+
+    def _first_explained(self, results: list[FitResult], threshold: float,
+                         k: int) -> FitResult | None:
+        """The best significant candidate whose fit the model explains: one fitted at the edge
+        of a parameter's range is evidence that the model does not explain the residual, so it
+        is reported (``unexplained``) and never taken on that basis."""
         for r in results:
-            evidence[f"{k + 1}:{r.effect}"] = explain(problem, r, descriptors)
-        best = results[0] if results else None
-        threshold = min_score if k == 0 else max(min_score, MIN_SCORE_LATER)
-        if best is None or not _significant(best, threshold, min_t):
-            break
-        selected.append(best.effect)
-        _log.info("round %d: %s (score %.1f, t %.1f)", k + 1, best.effect, best.score,
-                  best.t_stat)
-        rebased = [p.rebased(best.config) for p in problem.predictors]
-        # a moved camera (pose effects) can leave a pixel unpredicted: judge only pixels that
-        # every model so far predicts
-        usable = [u & np.isfinite(p.predict().range_mm)
-                  for u, p in zip(usable, rebased, strict=True)]
-        problem = Problem(real, rebased, problem.split, usable, reference_noise_mm, jumps)
-    return _finish(problem, base, selected, rounds, evidence, location, predictors,
-                   descriptors)
+            if not _significant(r, threshold, self.min_t):
+                return None
+            edge = parameters_at_edge(r)
+            if not edge:
+                return r
+            inner = self._away_from_edge(r, edge)
+            if inner is not None:
+                return inner
+            self.unexplained.append({
+                "round": k + 1, "effect": r.effect, "score": round(r.score, 3),
+                "parameters_at_edge": edge,
+                "why": "fitted at the edge of its realistic range: the model does not explain "
+                       "this residual",
+                "where": self.location.get("flagged", [])[:3]})
+        return None
+
+    def confirm(self, profile: list[str], given: ToFConfig) -> list[str]:
+        """The profile effects still significant in the final model: each is put back to its
+        ``given`` value and scored as a candidate again; one that no longer pays is dropped."""
+        kept = []
+        for name in profile:
+            current = self.problem.base
+            without = replace(current, effects={**current.effects,
+                                                name: given.effects[name]})
+            # judged at the given level: a free level would hide a changed offset
+            trial = replace(_rebased(self.problem, without), free_level=False)
+            back = score_fit(trial, FitResult(name, current, {}, len(free_params(name))))
+            if _significant(back, self.min_score, self.min_t):
+                kept.append(name)
+            else:
+                self.problem = replace(trial, free_level=self.problem.free_level,
+                                       _base_cost={}, _level=None)
+        return kept
+
+    def _away_from_edge(self, result: FitResult, edge: dict[str, float]) -> FitResult | None:
+        """The same candidate refitted with its edge parameters kept off the edge, if that
+        fits (nearly) as well: then the edge was a flat valley of degenerate parameters (a
+        drift's size and time constant over a few frames), not a limit the data pushes
+        against. None when the edge binds: the model does not explain the residual."""
+        box = []
+        for p in free_params(result.effect):
+            u = p.unit(result.parameters.get(p.name, p.low))
+            box.append((0.0, 1.0) if p.name not in edge else
+                       (0.0, 1.0 - INNER_MARGIN) if u > 0.5 else (INNER_MARGIN, 1.0))
+        q = self._with_refit(fit_effect(self.problem, result.effect, box=box))
+        if q.note or parameters_at_edge(q) or \
+                q.train_gain < EDGE_SLACK * result.train_gain:
+            return None
+        return q
+
+    def _with_refit(self, result: FitResult) -> FitResult:
+        """``result`` with the camera's profile refitted on top of it, scored against the
+        current model: what the profile absorbed of this physics before it was tried (a mean
+        offset of a warm-up drift, a range-dependent share of interreflection) goes back to it.
+        Refitting the profile is cheap: its effects come last in the pipeline."""
+        if result.note or not self.refit:
+            return result
+        config = result.config
+        for name in self.refit:
+            q = fit_effect(_rebased(self.problem, config), name)
+            if not q.note and q.train_gain > 0:
+                config = q.config
+        if config is result.config:
+            return result
+        # and the candidate once more on the refitted profile (one step of coordinate descent:
+        # a candidate first fitted against a profile that held part of it can sit far off)
+        q = fit_effect(_rebased(self.problem, config), result.effect)
+        if not q.note and q.train_gain > 0:
+            config = q.config
+        refitted = FitResult(result.effect, config, plain_params(config, result.effect),
+                             result.n_params, train_gain=result.train_gain)
+        return score_fit(self.problem, refitted)
+
+    def _rebase(self, config: ToFConfig) -> None:
+        self.problem = _rebased(self.problem, config)
+
+
+def _rebased(p: Problem, config: ToFConfig) -> Problem:
+    """``p`` around the model ``config``."""
+    rebased = [q.rebased(config) for q in p.predictors]
+    # a moved camera (pose effects) can leave a pixel unpredicted: judge only pixels that
+    # every model so far predicts
+    usable = [u & np.isfinite(q.predict().range_mm)
+              for u, q in zip(p.usable, rebased, strict=True)]
+    return Problem(p.real_mm, rebased, p.split, usable, p.reference_noise_mm, p.edge_jump_mm,
+                   free_level=p.free_level)
+
+
+#: a fitted parameter within this fraction of its range from an edge sits at the edge
+EDGE_FRACTION = 0.02
+#: an edge fit is retried with the edge parameters kept this far (fraction of the range)
+#: inside; when that keeps this share of the training gain, the edge did not bind
+INNER_MARGIN = 0.1
+EDGE_SLACK = 0.97
+
+
+def parameters_at_edge(result: FitResult) -> dict[str, float]:
+    """Fitted parameters of ``result`` at an edge of their realistic range that is only where
+    the search stopped: either edge of a signed quantity (±10 mrad of hand-eye rotation, ±20 mm
+    of drift) and the upper edge of a magnitude. The lower edge of a magnitude is a physical
+    limit (no multipath, the shortest warm-up) that a camera may well sit at."""
+    out = {}
+    for p in free_params(result.effect):
+        if p.name not in result.parameters:
+            continue
+        if p.periodic:
+            continue
+        u = p.unit(result.parameters[p.name])
+        signed = p.low < 0.0 < p.high
+        if u >= 1.0 - EDGE_FRACTION or (signed and u <= EDGE_FRACTION):
+            out[p.name] = result.parameters[p.name]
+    return out
 
 
 def _residuals(problem: Problem, config: ToFConfig | None,

@@ -33,9 +33,10 @@ import numpy as np
 from ..errors import MismatchError
 from ..recordings import save_npz
 from .analysis import MIN_SCORE, MIN_T, analyse
-from .cases import CONCEALABLE, generate_case, truth_config
+from .cases import CONCEALABLE, PATHTRACE_OWN, generate_case, truth_config
 from .data import load_frames
 from .fit import free_params
+from .profile import PROFILE_EFFECTS, SCENE_EFFECTS
 from .report import _clean, to_json
 
 #: share of control cases and of two-effect cases in a benchmark
@@ -43,20 +44,30 @@ CONTROL_SHARE = 0.2
 DOUBLE_SHARE = 0.15
 
 
-def case_plan(n_cases: int, seed: int) -> list[tuple[str, ...]]:
+def concealable(base: str) -> tuple[str, ...]:
+    """Effects a case on ``base`` may conceal: on the nominal cell every one; on another
+    camera the scene, pose and timing physics (the camera's own values are its profile, not
+    missing physics), less what a path tracer renders itself."""
+    if base == "nominal":
+        return CONCEALABLE
+    own = PATHTRACE_OWN if base == "pathtrace" else ()
+    return tuple(e for e in CONCEALABLE if e in SCENE_EFFECTS and e not in own)
+
+
+def case_plan(n_cases: int, seed: int, base: str = "nominal") -> list[tuple[str, ...]]:
     """Concealed effects of every case: controls, singles cycling over a shuffled library,
     and pairs (deterministic in ``seed``)."""
     if n_cases < 1:
         raise MismatchError(f"--cases must be >= 1, got {n_cases}")
+    library = concealable(base)
     rng = np.random.default_rng([seed, 7])
     n_ctrl = max(1, round(CONTROL_SHARE * n_cases))
     n_double = round(DOUBLE_SHARE * n_cases) if n_cases >= 5 else 0
     n_single = max(n_cases - n_ctrl - n_double, 0)
     singles = []
     while len(singles) < n_single:
-        singles.extend(CONCEALABLE[i] for i in rng.permutation(len(CONCEALABLE)))
-    doubles = [tuple(CONCEALABLE[i] for i in sorted(rng.choice(len(CONCEALABLE), 2,
-                                                                replace=False)))
+        singles.extend(library[i] for i in rng.permutation(len(library)))
+    doubles = [tuple(library[i] for i in sorted(rng.choice(len(library), 2, replace=False)))
                for _ in range(n_double)]
     plan: list[tuple[str, ...]] = ([()] * n_ctrl + [(s,) for s in singles[:n_single]]
                                    + doubles)
@@ -74,10 +85,12 @@ def parameter_error(effect: str, fitted: dict[str, float], truth: dict[str, Any]
 
 
 def _generate_one(out: Path, i: int, effects: tuple[str, ...], seed: int,
-                  n_frames: int) -> dict[str, Any]:
+                  n_frames: int, base: str) -> dict[str, Any]:
     """Write case ``i``'s frames (``cases/case_i.npz``) and return its label."""
     path = out / "cases" / f"case_{i:03d}.npz"
-    case = generate_case(np.random.default_rng([seed, i]), effects, n_frames=n_frames)
+    # every other control keeps the camera still: no pose or timing effect may be named there
+    case = generate_case(np.random.default_rng([seed, i]), effects, n_frames=n_frames,
+                         base=base, static=not effects and i % 2 == 1)
     save_npz(path, case.frames, overwrite=True)
     return _clean({"case": i, "file": str(path.relative_to(out)), **case.labels})
 
@@ -87,16 +100,27 @@ def oracle_metrics(frames_path: str | Path, label: dict[str, Any]) -> dict[str, 
     the floor that modelling the mismatch can reach. Run only when scoring, after the tool has
     answered."""
     frames = load_frames(frames_path)
-    return analyse(frames, truth_config(label["effects"]), max_effects=0).metrics
+    return analyse(frames, truth_config(label["effects"], label.get("camera")),
+                   max_effects=0).metrics
 
 
 def _score_case(label: dict[str, Any], result: dict[str, Any],
                 oracle: dict[str, float]) -> dict[str, Any]:
     truth = [e["name"] for e in label["effects"]]
     selected = result["selected"]
-    correct = (not selected) if not truth else bool(selected) and selected[0] in truth
+    profile = result.get("camera_profile", {}).get("effects", [])
+    # the effect named: the first physics named on top of the camera's profile; on the
+    # nominal cell, a concealed camera effect is named by being the profile's first
+    named = selected[:1] or (profile[:1] if set(truth) & set(PROFILE_EFFECTS) else [])
+    correct = (not selected) if not truth else bool(named) and named[0] in truth
     m = result["metrics"]
-    row = {"case": label["case"], "truth": truth, "selected": selected, "top1": correct,
+    row = {"case": label["case"], "base": label.get("base", "nominal"), "truth": truth,
+           "selected": selected, "profile": profile,
+           "static": label.get("static", False),
+           "pose_or_timing_named": bool(set(selected) & {"hand_eye", "time_offset",
+                                                         "temperature_drift"}),
+           "unexplained": [u["effect"] for u in result.get("unexplained", [])],
+           "top1": correct,
            "both_found": (set(truth) <= set(selected)) if len(truth) == 2 else None,
            "rmse_before_mm": m["rmse_before_mm"], "rmse_after_mm": m["rmse_after_mm"],
            "excess_before_mm": m["interior_excess_rmse_before_mm"],
@@ -110,6 +134,11 @@ def _score_case(label: dict[str, Any], result: dict[str, Any],
         if e["name"] in result["parameters"]:
             row["parameter_error"][e["name"]] = parameter_error(
                 e["name"], result["parameters"][e["name"]], e["params"])
+    camera = label.get("camera")
+    if camera is not None:
+        facts = result.get("camera_profile", {}).get("facts", {})
+        row["amplitude_scale_truth"] = camera["amplitude_scale"]
+        row["amplitude_scale_fit"] = facts.get("amplitude_scale")
     return row
 
 
@@ -146,8 +175,19 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     for r in eff:
         if len(r["truth"]) == 1:
             per_effect.setdefault(r["truth"][0], []).append(r["top1"])
+    bases = sorted({r.get("base", "nominal") for r in rows})
+    by_base = {b: {"cases": sum(r.get("base", "nominal") == b for r in rows),
+                   "top1": mean([r["top1"] for r in rows if r.get("base", "nominal") == b]),
+                   "false_alarm_rate": mean([not r["top1"] for r in ctrl
+                                             if r.get("base", "nominal") == b])}
+               for b in bases}
+    static = [r for r in ctrl if r.get("static")]
     return {
         "cases": len(rows), "controls": len(ctrl), "effect_cases": len(eff),
+        "by_base": by_base,
+        "static_controls": len(static),
+        "pose_or_timing_named_on_static_controls": sum(r.get("pose_or_timing_named", False)
+                                                       for r in static),
         "two_effect_cases": len(doubles),
         "top1_accuracy": mean([r["top1"] for r in rows]),
         "top1_accuracy_effect_cases": mean([r["top1"] for r in eff]),
@@ -247,8 +287,13 @@ def merge_runs(run_dirs: list[str | Path], out_dir: str | Path) -> dict[str, Any
 
 
 def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int = 6,
+                  base: str = "nominal",
                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Generate ``n_cases`` cases, run the tool blind on each, score, write JSON + table.
+
+    ``base``: the camera every case's concealed effects sit on (``cases.BASES``): the nominal
+    cell, a random camera profile each case, or a random profile with path-traced light
+    transport (needs the ``[pathtrace]`` extra).
 
     Writes ``cases/*.npz``, ``labels.json`` (hidden truth), ``results/case_XXX.json`` (the
     tool's answers), ``benchmark.json`` and ``benchmark.txt`` into ``out_dir``.
@@ -259,12 +304,12 @@ def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int
     out = Path(out_dir)
     (out / "cases").mkdir(parents=True, exist_ok=True)
     (out / "results").mkdir(exist_ok=True)
-    plan = case_plan(n_cases, seed)
+    plan = case_plan(n_cases, seed, base)
     labels: list[dict[str, Any]] = []
     t_gen, times = 0.0, []
     for i, effects in enumerate(plan):
         t0 = time.time()
-        labels.append(_generate_one(out, i, effects, seed, n_frames))
+        labels.append(_generate_one(out, i, effects, seed, n_frames, base))
         # labels live apart from the frames; the tool below is given the .npz only
         (out / "labels.json").write_text(json.dumps(labels, indent=2))
         t1 = time.time()
@@ -281,6 +326,7 @@ def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int
         rows.append(_score_case(label, result, oracle_metrics(out / label["file"], label)))
     summary = summarise(rows)
     doc = _clean({"summary": summary, "cases": rows, "seed": seed, "n_frames": n_frames,
+                  "base": base,
                   "generation_s_per_case": t_gen / len(plan),
                   "analysis_s_per_case_median": float(np.median(times)),
                   "machine": {"platform": platform.platform(), "processor": platform.processor(),

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -35,6 +35,7 @@ from ..sim.tof import ToFConfig, render_tof
 from ..sim.tof.effects.wiggling import wiggle_mm
 from ..sim.tof.warp import rotation_matrix
 from ..sim.viewpoints import view_pose_mm
+from .profile import with_amplitude_units
 
 #: effects the benchmark conceals; ``phase_wrapping`` is nominal and has no parameter, and at
 #: 30 MHz nothing in the workspace wraps, so it cannot be concealed in the cell
@@ -139,6 +140,38 @@ DRAWS: dict[str, Callable[[np.random.Generator, int], dict[str, Any]]] = {
 }
 
 
+#: modulation frequencies of the cameras the benchmark draws (the cell's 30 MHz among them)
+PROFILE_FREQUENCIES_HZ = (20e6, 30e6, 50e6, 80e6, 100e6)
+
+
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+
+def draw_camera_profile(rng: np.random.Generator) -> dict[str, Any]:
+    """A camera that is not the nominal cell: its own noise law (0.3-3× the nominal std), level
+    and per-pixel pattern (a new one), wiggle, amplitude bias, amplitude units (0.01-100× the
+    simulator's) and modulation frequency. Returns ``{"effects": {name: params},
+    "amplitude_scale": k, "mod_freq_hz": f}``."""
+    effects = {
+        "noise_model": {"scale": _log_uniform(rng, 0.3, 3.0),
+                        "exponent": float(rng.uniform(0.85, 1.2)),
+                        "jitter_mm": float(rng.uniform(0.0, 1.0))},
+        "pixel_offset": {"offset_mean_mm": float(rng.uniform(-8.0, 8.0)),
+                         "offset_std_mm": float(rng.uniform(0.5, 3.0)),
+                         "gain_std": float(rng.uniform(0.0, 0.008)),
+                         "seed": int(rng.integers(0, 2**31 - 1))},
+        "wiggling": {"a1_mm": float(rng.uniform(0.0, 8.0)),
+                     "p1_rad": float(rng.uniform(-math.pi, math.pi)),
+                     "a2_mm": float(rng.uniform(0.0, 3.0)),
+                     "p2_rad": float(rng.uniform(-math.pi, math.pi))},
+        "amplitude_bias": {"bias_mm": float(rng.uniform(-6.0, 6.0)),
+                           "exponent": float(rng.uniform(0.3, 1.2))},
+    }
+    return {"effects": effects, "amplitude_scale": _log_uniform(rng, 0.01, 100.0),
+            "mod_freq_hz": float(rng.choice(PROFILE_FREQUENCIES_HZ))}
+
+
 def draw_effect(name: str, rng: np.random.Generator, n_frames: int) -> dict[str, Any]:
     """Random parameters of effect ``name`` (floats, or 1-tuples for per-material ones)."""
     params = DRAWS[name](rng, n_frames)
@@ -171,59 +204,117 @@ def _true_pose(sweep: Sweep, scene: Scene, t_s: float, effects: dict[str, dict])
     return pose
 
 
-def real_config(effects: dict[str, dict]) -> ToFConfig:
-    """The real camera's config: nominal plus the concealed effects (pose errors excepted)."""
+def camera_config(profile: dict[str, Any] | None) -> ToFConfig:
+    """The nominal cell, or the camera of a drawn profile (:func:`draw_camera_profile`) in the
+    simulator's amplitude units (the units are applied to the recorded amplitude)."""
     cfg = ToFConfig.nominal()
+    if profile is None:
+        return cfg
+    for name, params in profile["effects"].items():
+        cfg = cfg.with_effect(name, enabled=True, **params)
+    return replace(cfg, mod_freq_hz=float(profile["mod_freq_hz"]))
+
+
+def real_config(effects: dict[str, dict], profile: dict[str, Any] | None = None) -> ToFConfig:
+    """The real camera's config: its profile (default nominal) plus the concealed effects
+    (pose errors excepted)."""
+    cfg = camera_config(profile)
     for name, params in effects.items():
         if name not in ("time_offset", "hand_eye"):
             cfg = cfg.with_effect(name, enabled=True, **params)
     return cfg
 
 
-def truth_config(effects: Sequence[dict[str, Any]]) -> ToFConfig:
-    """The simulator config an oracle would give the tool: nominal plus every concealed effect
-    at its true parameters, pose errors included as the predictor's ``hand_eye`` /
-    ``time_offset`` effects.
+def truth_config(effects: Sequence[dict[str, Any]],
+                 profile: dict[str, Any] | None = None) -> ToFConfig:
+    """The simulator config an oracle would give the tool: the camera (its profile, in its
+    amplitude units) plus every concealed effect at its true parameters, pose errors included
+    as the predictor's ``hand_eye`` / ``time_offset`` effects.
 
     Args:
         effects: a label's ``"effects"`` list, ``[{"name": ..., "params": {...}}, ...]``.
+        profile: a label's ``"camera"`` (None: the nominal cell).
     """
-    cfg = ToFConfig.nominal()
+    cfg = camera_config(profile)
+    if profile is not None:
+        cfg = with_amplitude_units(cfg, float(profile["amplitude_scale"]))
     for effect in effects:
         cfg = cfg.with_effect(effect["name"], enabled=True, **effect["params"])
     return cfg
 
 
+#: bases of a case: the nominal cell, a drawn camera profile, or a drawn profile whose light
+#: transport is path-traced (the ``[pathtrace]`` extra: true multi-bounce interreflection,
+#: glossy and metal parts, translucent media)
+BASES = ("nominal", "profile", "pathtrace")
+#: what cannot be concealed on a path-traced base: the transport is the path tracer's, so the
+#: simulator's multipath, pixel footprint and subsurface stages are not applied
+PATHTRACE_OWN = ("multipath", "mixed_pixels", "subsurface")
+#: samples per pixel of a path-traced case
+PATHTRACE_SPP = 64
+
+
 def generate_case(rng: np.random.Generator, effects: Sequence[str], *, n_frames: int = 8,
                   intrinsics: Intrinsics = DEFAULT_INTRINSICS, supersample: int = 3,
-                  fusion: FusionConfig = BENCH_FUSION) -> Case:
+                  fusion: FusionConfig = BENCH_FUSION, base: str = "nominal",
+                  static: bool = False) -> Case:
     """A "real" sweep carrying the concealed ``effects`` (empty = a control).
 
     Args:
         rng: source of all randomness (scene, sweep, parameters, noise).
-        effects: names from ``CONCEALABLE``.
+        effects: names from ``CONCEALABLE`` (on a ``"pathtrace"`` base, none of
+            ``PATHTRACE_OWN``).
         n_frames: frames of the sweep, ``FRAME_PERIOD_S`` apart.
         intrinsics: the ToF image grid.
         supersample: samples per pixel and axis of the "real" render.
         fusion: structured-light fusion of the reference.
+        base: one of ``BASES``: the camera the concealed effects sit on.
+        static: the camera stays at the sweep's first view (no motion: no pose or timing
+            effect can show).
     """
+    if base not in BASES:
+        raise ValueError(f"base must be one of {BASES}, got {base!r}")
+    if base == "pathtrace" and set(effects) & set(PATHTRACE_OWN):
+        raise ValueError(f"a path-traced base cannot conceal {PATHTRACE_OWN}")
     drawn = {name: draw_effect(name, rng, n_frames) for name in effects}
-    scene = make_scene("test", rng)
+    profile = draw_camera_profile(rng) if base != "nominal" else None
+    scene = make_scene("test", rng, materials="pathtrace" if base == "pathtrace" else "builtin")
     sweep = draw_sweep(rng, n_frames)
-    cfg = real_config(drawn)
+    if static:
+        sweep = Sweep(sweep.start, sweep.start, 0.0, sweep.duration_s)
+    cfg = real_config(drawn, profile)
+    k = 1.0 if profile is None else float(profile["amplitude_scale"])
     frames = []
     for i in range(n_frames):
         t_s = i * FRAME_PERIOD_S
         nominal_pose = sweep.pose_mm(scene, t_s)
-        surface = render_surface(scene, _true_pose(sweep, scene, t_s, drawn),
-                                 intrinsics.scaled(supersample))
-        meas = render_tof(surface, cfg, rng, supersample=supersample, frame_index=i)
+        true_pose = _true_pose(sweep, scene, t_s, drawn)
+        surface = render_surface(scene, true_pose, intrinsics.scaled(supersample))
+        transport = (_traced(scene, true_pose, intrinsics, cfg, int(rng.integers(0, 1 << 16)))
+                     if base == "pathtrace" else None)
+        meas = render_tof(surface, cfg, rng, supersample=supersample, frame_index=i,
+                          transport=transport)
         ref = reference_range(scene, nominal_pose, intrinsics, rng, fusion=fusion)
-        frames.append(ToFFrame(meas.range_mm, meas.amplitude, intrinsics,
+        frames.append(ToFFrame(meas.range_mm, meas.amplitude * k, intrinsics,
                                mod_freq_hz=cfg.mod_freq_hz, reference_mm=ref,
                                stamp_ns=round(t_s * 1e9),
                                pose=pose_mm_to_m(nominal_pose)))
-    labels = {"effects": [{"name": n, "params": drawn[n]} for n in effects],
-              "n_frames": n_frames, "scene_objects": len(scene.objects),
+    labels = {"effects": [{"name": n, "params": drawn[n]} for n in effects], "base": base,
+              "static": bool(static),
+              "camera": profile, "n_frames": n_frames, "scene_objects": len(scene.objects),
               "sweep": {"start": sweep.start, "end": sweep.end, "wobble": sweep.wobble}}
     return Case(frames, labels)
+
+
+def _traced(scene: Scene, pose_mm: np.ndarray, intrinsics: Intrinsics, cfg: ToFConfig,
+            seed: int) -> np.ndarray:
+    """(H, W) complex128 path-traced phasor of the pixels (every bounce), simulator units."""
+    from ..sim.pathtrace.light import SpotLight
+    from ..sim.pathtrace.render import DATASET_RR_DEPTH, render_phasor
+
+    p = cfg.params("multipath")
+    light = SpotLight(cone_half_angle_deg=float(p["cutoff_deg"]),
+                      beam_width_deg=float(p["beam_deg"]), light_power=cfg.light_power)
+    return render_phasor(scene, pose_mm, intrinsics, mod_freq_hz=cfg.mod_freq_hz,
+                         spp=PATHTRACE_SPP, max_depth=-1, seed=seed, light=light,
+                         spp_per_pass=min(PATHTRACE_SPP, 64), rr_depth=DATASET_RR_DEPTH)

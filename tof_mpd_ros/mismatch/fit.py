@@ -22,7 +22,14 @@ from scipy import optimize
 
 from ..sim.tof import EFFECTS, ToFConfig
 from .data import Split
-from .likelihood import REFERENCE_NOISE_MM, bic_penalty, nll, tile_t_statistic, total_sigma
+from .likelihood import (
+    REFERENCE_NOISE_MM,
+    best_shift,
+    bic_penalty,
+    nll,
+    tile_t_statistic,
+    total_sigma,
+)
 from .predict import FramePredictor, Prediction
 
 #: the candidate library of SPEC §5 (``none`` is the answer when none of them is significant)
@@ -47,27 +54,50 @@ NEUTRAL: dict[str, dict[str, float]] = {
 }
 
 
+#: a positive range spanning more than this ratio is searched in log space (a time constant
+#: of 5-2000 frames: linear steps could not tell 5 from 25)
+LOG_RANGE_RATIO = 20.0
+
+
 @dataclass(frozen=True)
 class FreeParam:
-    """One fitted parameter: its effect's spec name and realistic range."""
+    """One fitted parameter: its effect's spec name and realistic range, mapped to [0, 1]
+    (linearly, or logarithmically for a wide positive range)."""
 
     name: str
     low: float
     high: float
     per_material: bool
+    unit_name: str = ""
+
+    @property
+    def log(self) -> bool:
+        return self.low > 0.0 and self.high / self.low > LOG_RANGE_RATIO
+
+    @property
+    def periodic(self) -> bool:
+        """An angle over a whole turn: its range has no edge."""
+        return self.unit_name == "rad" and abs(self.high - self.low - 2 * np.pi) < 1e-9
 
     def value(self, u: float) -> float | tuple[float]:
-        x = self.low + float(np.clip(u, 0.0, 1.0)) * (self.high - self.low)
+        t = float(np.clip(u, 0.0, 1.0))
+        x = (self.low * (self.high / self.low) ** t if self.log
+             else self.low + t * (self.high - self.low))
         return (x,) if self.per_material else x
 
     def unit(self, value: Any) -> float:
         v = float(np.atleast_1d(value)[0])
-        return float(np.clip((v - self.low) / (self.high - self.low), 0.0, 1.0))
+        if self.log:
+            t = np.log(max(v, self.low) / self.low) / np.log(self.high / self.low)
+        else:
+            t = (v - self.low) / (self.high - self.low)
+        return float(np.clip(t, 0.0, 1.0))
 
 
 def free_params(effect: str) -> list[FreeParam]:
     """Fitted parameters of ``effect`` (per-material tuples are fitted as one shared value)."""
-    return [FreeParam(p.name, float(p.low), float(p.high), isinstance(p.default, tuple))
+    return [FreeParam(p.name, float(p.low), float(p.high), isinstance(p.default, tuple),
+                      p.unit)
             for p in EFFECTS[effect].params if p.fit and p.high > p.low]
 
 
@@ -97,6 +127,10 @@ class Problem:
         usable: per frame, (H, W) bool pixels with real range, reference and base prediction.
         reference_noise_mm: std of the reference, mm.
         edge_jump_mm: per frame, (H, W) range step at reference depth edges (mm), or None.
+        free_level: every model is judged at its own best constant range offset (the camera's
+            level, a profile parameter), found on the training pixels: a candidate is not
+            scored on what a level change alone would give, nor held to a level the profile
+            set while the candidate's physics was missing (variable projection).
     """
 
     real_mm: list[np.ndarray]
@@ -105,7 +139,9 @@ class Problem:
     usable: list[np.ndarray]
     reference_noise_mm: float = REFERENCE_NOISE_MM
     edge_jump_mm: list[np.ndarray] | None = None
+    free_level: bool = False
     _base_cost: dict[int, np.ndarray] = field(default_factory=dict)
+    _level: tuple[Any, float] | None = None
 
     @property
     def base(self) -> ToFConfig:
@@ -122,16 +158,36 @@ class Problem:
         """(H, W) per-pixel cost of frame ``i`` under ``config`` (None = base); pixels the
         candidate leaves unpredicted keep their base cost, so dropping pixels gains nothing."""
         if i not in self._base_cost:
-            self._base_cost[i] = self._raw_cost(self.predictors[i].predict(), i)
+            self._base_cost[i] = self._raw_cost(self.predictors[i].predict(), i,
+                                                self.level(None))
         if config is None:
             return self._base_cost[i]
-        cost = self._raw_cost(self.predictors[i].predict(config), i)
+        cost = self._raw_cost(self.predictors[i].predict(config), i, self.level(config))
         return np.where(np.isfinite(cost), cost, self._base_cost[i])
 
-    def _raw_cost(self, pred: Prediction, i: int) -> np.ndarray:
+    def level(self, config: ToFConfig | None) -> float:
+        """The constant range offset (mm) that ``config`` is judged at: 0, or with
+        ``free_level`` its best one on the training pixels (cached for the last config)."""
+        if not self.free_level:
+            return 0.0
+        if self._level is not None and self._level[0] is config:
+            return self._level[1]
+        res, sig = [], []
+        for i, m in enumerate(self.masks("train")):
+            if m.any():
+                pred = self.predictors[i].predict(config)
+                res.append((self.real_mm[i] - pred.range_mm)[m])
+                sig.append(self._sigma(pred, i)[m])
+        shift = best_shift(np.concatenate(res), np.concatenate(sig)) if res else 0.0
+        self._level = (config, shift)
+        return shift
+
+    def _sigma(self, pred: Prediction, i: int) -> np.ndarray:
         jump = 0.0 if self.edge_jump_mm is None else self.edge_jump_mm[i]
-        sigma = total_sigma(pred.noise_mm, self.reference_noise_mm, jump)
-        return nll(self.real_mm[i] - pred.range_mm, sigma)
+        return total_sigma(pred.noise_mm, self.reference_noise_mm, jump)
+
+    def _raw_cost(self, pred: Prediction, i: int, shift: float = 0.0) -> np.ndarray:
+        return nll(self.real_mm[i] - pred.range_mm - shift, self._sigma(pred, i))
 
     def total_cost(self, config: ToFConfig | None, which: str) -> tuple[float, int]:
         """(sum of the cost over the ``which`` pixels, number of pixels)."""
@@ -186,7 +242,7 @@ def _design(k: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def fit_effect(problem: Problem, effect: str, *, max_evals: int = 150,
-               seed: int = 0) -> FitResult:
+               seed: int = 0, box: Sequence[tuple[float, float]] | None = None) -> FitResult:
     """Fit ``effect``'s free parameters on the training pixels, then score it held-out.
 
     Args:
@@ -194,6 +250,8 @@ def fit_effect(problem: Problem, effect: str, *, max_evals: int = 150,
         effect: a candidate name.
         max_evals: budget of objective evaluations for the local refinement.
         seed: seed of the coarse design (deterministic).
+        box: per free parameter, the part of its realistic range searched, in unit-box
+            coordinates (default the whole range, (0, 1) each).
     """
     base = problem.base
     params = free_params(effect)
@@ -215,23 +273,41 @@ def fit_effect(problem: Problem, effect: str, *, max_evals: int = 150,
     current = base.params(effect)
     if not base.enabled(effect):
         current.update(NEUTRAL.get(effect, {}))
+    bounds = [(0.0, 1.0)] * k if box is None else [tuple(map(float, b)) for b in box]
+    lo, hi = np.array([b[0] for b in bounds]), np.array([b[1] for b in bounds])
     u0 = np.array([p.unit(current[p.name]) for p in params])
-    design = np.vstack([u0[None, :], _design(k, np.random.default_rng(seed))])
+    design = np.clip(np.vstack([u0[None, :], lo + (hi - lo) * _design(
+        k, np.random.default_rng(seed))]), lo, hi)
     costs = np.array([cost(u) for u in design])
     order = np.argsort(costs)
     best_u, best_c = design[order[0]], costs[order[0]]
     # two local searches for small problems; one (with the whole budget) for large ones
     starts = design[order[:2]] if k <= 2 else design[order[:1]]
     for start in starts:
-        res = optimize.minimize(cost, start, method="Powell", bounds=[(0.0, 1.0)] * k,
+        res = optimize.minimize(cost, start, method="Powell", bounds=bounds,
                                 options={"xtol": 1e-2, "ftol": 1e-6,
                                          "maxfev": max_evals // len(starts)})
         if res.fun < best_c:
-            best_u, best_c = np.clip(res.x, 0.0, 1.0), float(res.fun)
-    config = with_params(base, effect, best_u)
+            best_u, best_c = np.clip(res.x, lo, hi), float(res.fun)
+    fitted = with_params(base, effect, best_u)
+    config = with_level(fitted, problem.level(fitted))
     result = FitResult(effect, config, plain_params(config, effect), k,
                        train_gain=float(base_train / n_train - best_c))
     return score_fit(problem, result)
+
+
+def with_level(config: ToFConfig, shift_mm: float) -> ToFConfig:
+    """``config`` with its constant range offset (``pixel_offset``'s mean) moved by
+    ``shift_mm`` (which adds exactly that to every predicted range: nothing after it in the
+    pipeline depends on the range)."""
+    if shift_mm == 0.0:
+        return config
+    p = config.params("pixel_offset")
+    if not config.enabled("pixel_offset"):
+        p.update(offset_std_mm=0.0, gain_std=0.0, offset_mean_mm=0.0)
+    return config.with_effect("pixel_offset", enabled=True,
+                              offset_mean_mm=float(p["offset_mean_mm"]) + float(shift_mm),
+                              offset_std_mm=p["offset_std_mm"], gain_std=p["gain_std"])
 
 
 def score_fit(problem: Problem, result: FitResult) -> FitResult:

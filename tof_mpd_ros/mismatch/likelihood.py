@@ -46,6 +46,27 @@ def nll(residual_mm: np.ndarray, sigma_mm: np.ndarray) -> np.ndarray:
     return np.log(sigma_mm) + 0.5 * (NU + 1.0) * np.log1p(z2 / NU)
 
 
+def best_shift(residual_mm: np.ndarray, sigma_mm: np.ndarray, iterations: int = 8) -> float:
+    """The constant c minimising Σ nll(r − c, σ): the Student-t location, by iteratively
+    reweighted least squares (weights (ν + 1) / (ν σ² + (r − c)²), the t's own), from the
+    weighted median; 0 without finite pixels.
+
+    Args:
+        residual_mm, sigma_mm: (N,) float residuals and scales in mm.
+    """
+    r = np.asarray(residual_mm, np.float64)
+    s = np.asarray(sigma_mm, np.float64)
+    ok = np.isfinite(r) & np.isfinite(s) & (s > 0)
+    if not ok.any():
+        return 0.0
+    r, s2 = r[ok], s[ok] ** 2
+    c = float(np.median(r))
+    for _ in range(iterations):
+        w = (NU + 1.0) / (NU * s2 + (r - c) ** 2)
+        c = float(np.sum(w * r) / np.sum(w))
+    return c
+
+
 def bic_penalty(n_params: int, n_pixels: int) -> float:
     """BIC-like complexity cost in nats *per pixel*: ½ k ln(n_eff) / n_eff · ... per pixel.
 

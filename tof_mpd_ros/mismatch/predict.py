@@ -325,6 +325,7 @@ class FramePredictor:
         self._indirect = {} if indirect_cache is None else indirect_cache
         self.base = base
         self._checkpoints: dict[int, _State] = {}
+        self._last: tuple[ToFConfig, Prediction] | None = None
         self._base_result = self._run(base, 0, _State(self.surface), record=True)
 
     # -- public -------------------------------------------------------------------------------
@@ -333,6 +334,8 @@ class FramePredictor:
         """Expected measurement under ``config`` (None = the base configuration)."""
         if config is None or config == self.base:
             return self._base_result
+        if self._last is not None and self._last[0] is config:
+            return self._last[1]   # a fit asks twice: for its level, then for its cost
         start = self._first_difference(config)
         if start is None:
             rng_mm, amp = self._base_result.range_mm, self._base_result.amplitude
@@ -340,7 +343,9 @@ class FramePredictor:
         state = self._checkpoints[start]
         copy = _State(state.surface, state.z, state.range_mm, state.amplitude,
                       dict(state.extra))
-        return self._run(config, start, copy, record=False)
+        result = self._run(config, start, copy, record=False)
+        self._last = (config, result)
+        return result
 
     def rebased(self, base: ToFConfig) -> FramePredictor:
         """The same frame predicted around another base configuration (albedo and the indirect

@@ -26,6 +26,12 @@ def to_json(analysis: Analysis) -> dict[str, Any]:
         "selected": analysis.selected,
         "verdict": (", ".join(analysis.selected) if analysis.selected
                     else "none: no significant mismatch"),
+        "workflow": analysis.workflow,
+        "camera_profile": {"effects": analysis.profile,
+                           "parameters": {e: analysis.parameters[e] for e in analysis.profile},
+                           "facts": analysis.profile_facts,
+                           "summary": "; ".join(analysis.profile_words)},
+        "unexplained": analysis.unexplained,
         "ranking": analysis.ranking(),
         "parameters": analysis.parameters,
         "rmse_before_mm": m.get("rmse_before_mm"),
@@ -164,7 +170,11 @@ table{{border-collapse:collapse}}
 td,th{{border:1px solid #ccc;padding:3px 6px;font-size:13px;vertical-align:top}}</style>
 </head><body>
 <h1>Sim-vs-real mismatch</h1>
-<p><b>Verdict:</b> {html.escape(doc["verdict"])}</p>
+<p><b>Verdict:</b> {html.escape(doc["verdict"])} ({html.escape(doc["workflow"])})</p>
+<p><b>The camera's profile:</b> {html.escape(doc["camera_profile"]["summary"])}</p>
+{"".join(f"<p><b>Not explained:</b> {html.escape(u['effect'])} fitted "
+         f"{html.escape(json.dumps(u['parameters_at_edge']))} at the edge of its range: "
+         f"{html.escape(u['why'])}</p>" for u in doc["unexplained"])}
 <p>Fitted parameters: {html.escape(json.dumps(doc["parameters"]))}</p>
 <h2>Held-out residuals before / after</h2>{_table(metric_rows, ["metric", "before", "after"])}
 {imgs}

@@ -23,7 +23,7 @@ class AmplitudeBias(Effect):
     nominal = True
     summary = "range bias growing as the amplitude falls: b·((a_ref/a)^γ − 1)"
     params = (
-        ParamSpec("bias_mm", 2.0, -10.0, 10.0, "mm", "scale of the bias"),
+        ParamSpec("bias_mm", 2.0, -20.0, 20.0, "mm", "scale of the bias"),
         ParamSpec("ref_amplitude", 300.0, 10.0, 2000.0, "amplitude", "amplitude with no bias",
                   fit=False),
         ParamSpec("exponent", 0.5, 0.1, 2.0, "1", "how fast the bias grows as a falls"),

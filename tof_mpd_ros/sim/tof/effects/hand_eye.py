@@ -24,12 +24,12 @@ class HandEye(Effect):
     stage = "geometry"
     summary = "small rotation/translation error of the camera pose; geometry reprojected"
     params = (
-        ParamSpec("rx_mrad", 0.0, -10.0, 10.0, "mrad", "rotation about the optical x axis"),
-        ParamSpec("ry_mrad", 0.0, -10.0, 10.0, "mrad", "rotation about the optical y axis"),
-        ParamSpec("rz_mrad", 0.0, -10.0, 10.0, "mrad", "rotation about the optical axis"),
-        ParamSpec("tx_mm", 0.0, -5.0, 5.0, "mm", "translation along optical x (right)"),
-        ParamSpec("ty_mm", 0.0, -5.0, 5.0, "mm", "translation along optical y (down)"),
-        ParamSpec("tz_mm", 0.0, -5.0, 5.0, "mm", "translation along the optical axis"),
+        ParamSpec("rx_mrad", 0.0, -20.0, 20.0, "mrad", "rotation about the optical x axis"),
+        ParamSpec("ry_mrad", 0.0, -20.0, 20.0, "mrad", "rotation about the optical y axis"),
+        ParamSpec("rz_mrad", 0.0, -20.0, 20.0, "mrad", "rotation about the optical axis"),
+        ParamSpec("tx_mm", 0.0, -10.0, 10.0, "mm", "translation along optical x (right)"),
+        ParamSpec("ty_mm", 0.0, -10.0, 10.0, "mm", "translation along optical y (down)"),
+        ParamSpec("tz_mm", 0.0, -10.0, 10.0, "mm", "translation along the optical axis"),
     )
 
     def apply(self, x: SurfaceImage, params: Mapping[str, Any],

@@ -23,7 +23,7 @@ class LensScatter(Effect):
     stage = "phasor"
     summary = "a fraction of each pixel's phasor spread over the image by a wide PSF"
     params = (
-        ParamSpec("fraction", 0.02, 0.0, 0.1, "1", "share of each pixel's light scattered"),
+        ParamSpec("fraction", 0.02, 0.0, 0.2, "1", "share of each pixel's light scattered"),
         ParamSpec("sigma_px", 25.0, 5.0, 80.0, "px", "width of the scatter PSF"),
     )
 

@@ -65,7 +65,7 @@ class MixedPixels(Effect):
     nominal = True
     summary = "phasor sum over the pixel footprint: ranges between fore- and background at edges"
     params = (
-        ParamSpec("psf_sigma_px", 0.3, 0.0, 1.5, "px",
+        ParamSpec("psf_sigma_px", 0.3, 0.0, 3.0, "px",
                   "Gaussian optical blur on top of the pixel's box footprint"),
     )
 

@@ -30,7 +30,7 @@ class Multipath(Effect):
     nominal = True
     summary = "diffuse interreflection of every lit surface (three bounces), with visibility"
     params = (
-        ParamSpec("gain", 1.0, 0.0, 3.0, "1", "scale of the indirect phasor (1 = physical)"),
+        ParamSpec("gain", 1.0, 0.0, 5.0, "1", "scale of the indirect phasor (1 = physical)"),
         ParamSpec("bounces", 3, 1, 4, "1", "diffuse bounces between light and pixel", fit=False),
         ParamSpec("leaf_mm", DEFAULT_LEAF_MM, 1.0, 20.0, "mm", "finest surface patch",
                   fit=False),

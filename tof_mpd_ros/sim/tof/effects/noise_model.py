@@ -26,7 +26,7 @@ class NoiseModel(Effect):
     stage = "phasor"
     summary = "wrong noise scaling: scaled variance, other amplitude exponent, phase jitter"
     params = (
-        ParamSpec("scale", 1.5, 0.25, 4.0, "1", "multiplies the noise std"),
+        ParamSpec("scale", 1.5, 0.1, 4.0, "1", "multiplies the noise std"),
         ParamSpec("exponent", 1.0, 0.5, 2.0, "1", "power of the amplitude in the shot term"),
         ParamSpec("jitter_mm", 0.0, 0.0, 5.0, "mm", "amplitude-independent range noise std"),
     )

@@ -79,8 +79,8 @@ class PixelOffset(Effect):
     summary = "fixed-pattern per-pixel range offset and gain"
     params = (
         ParamSpec("offset_mean_mm", 4.0, -20.0, 20.0, "mm", "offset common to all pixels"),
-        ParamSpec("offset_std_mm", 2.0, 0.0, 10.0, "mm", "pixel-to-pixel offset spread"),
-        ParamSpec("gain_std", 0.005, 0.0, 0.03, "1", "pixel-to-pixel gain spread"),
+        ParamSpec("offset_std_mm", 2.0, 0.0, 20.0, "mm", "pixel-to-pixel offset spread"),
+        ParamSpec("gain_std", 0.005, 0.0, 0.06, "1", "pixel-to-pixel gain spread"),
         ParamSpec("seed", 20160516, 0, 2**31 - 1, "1", "seed of the fixed pattern", fit=False),
     )
 

@@ -34,8 +34,8 @@ class Subsurface(Effect):
     stage = "phasor"
     summary = "per-material extra delay and small spatial blur of the phasor"
     params = (
-        ParamSpec("delay_mm", (3.0,), 0.0, 15.0, "mm", "extra range of the subsurface part"),
-        ParamSpec("sigma_px", (1.0,), 0.0, 3.0, "px", "spatial spread of the subsurface part"),
+        ParamSpec("delay_mm", (3.0,), 0.0, 30.0, "mm", "extra range of the subsurface part"),
+        ParamSpec("sigma_px", (1.0,), 0.0, 6.0, "px", "spatial spread of the subsurface part"),
         ParamSpec("fraction", (0.3,), 0.0, 1.0, "1", "share of the light scattered below"),
     )
 

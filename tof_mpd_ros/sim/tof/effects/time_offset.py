@@ -24,7 +24,7 @@ class TimeOffset(Effect):
     stage = "geometry"
     summary = "ToF stamp vs pose offset: geometry seen from the pose Δt later along the motion"
     params = (
-        ParamSpec("offset_ms", 0.0, -50.0, 50.0, "ms",
+        ParamSpec("offset_ms", 0.0, -100.0, 100.0, "ms",
                   "exposure time minus stamp (positive: the camera is ahead of its pose)"),
     )
 

@@ -34,9 +34,9 @@ class Wiggling(Effect):
     nominal = True
     summary = "cyclic error in the phase (harmonics 4φ, 8φ), a few mm"
     params = (
-        ParamSpec("a1_mm", 3.0, 0.0, 10.0, "mm", "amplitude of the 4φ term"),
+        ParamSpec("a1_mm", 3.0, 0.0, 20.0, "mm", "amplitude of the 4φ term"),
         ParamSpec("p1_rad", 0.5, -np.pi, np.pi, "rad", "phase of the 4φ term"),
-        ParamSpec("a2_mm", 1.0, 0.0, 5.0, "mm", "amplitude of the 8φ term"),
+        ParamSpec("a2_mm", 1.0, 0.0, 10.0, "mm", "amplitude of the 8φ term"),
         ParamSpec("p2_rad", 1.0, -np.pi, np.pi, "rad", "phase of the 8φ term"),
     )
 

@@ -1,0 +1,97 @@
+"""The camera first: amplitude units, the recording's frequency, the level, edges of ranges."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from tof_mpd_ros.camera import Intrinsics
+from tof_mpd_ros.mismatch import analyse
+from tof_mpd_ros.mismatch.analysis import parameters_at_edge
+from tof_mpd_ros.mismatch.fit import FitResult, free_params
+from tof_mpd_ros.mismatch.likelihood import best_shift
+from tof_mpd_ros.mismatch.predict import noise_std_mm
+from tof_mpd_ros.mismatch.profile import adopt_recording, with_amplitude_units
+from tof_mpd_ros.sim.tof import ToFConfig, render_from_reference
+from tof_mpd_ros.sim.tof.analytic import box_on_table_scene, raycast
+
+NOMINAL = ToFConfig.nominal()
+SMALL = Intrinsics.from_fov(48, 36, 74.0)
+
+
+def test_amplitude_units_change_no_range_and_no_noise():
+    ref = raycast(box_on_table_scene(), SMALL).range_mm
+    k = 37.0
+    one = render_from_reference(ref, SMALL, 0.5, NOMINAL, np.random.default_rng(3))
+    other = render_from_reference(ref, SMALL, 0.5, with_amplitude_units(NOMINAL, k),
+                                  np.random.default_rng(3))
+    np.testing.assert_allclose(other.range_mm, one.range_mm, atol=1e-4, equal_nan=True)
+    np.testing.assert_allclose(other.amplitude, k * one.amplitude, rtol=1e-5, equal_nan=True)
+    a = np.array([20.0, 200.0, 2000.0])
+    np.testing.assert_allclose(noise_std_mm(k * a, with_amplitude_units(NOMINAL, k)),
+                               noise_std_mm(a, NOMINAL), rtol=1e-9)
+
+
+def test_the_recording_sets_the_frequency_and_the_grey_world_the_units(sweep):
+    camera = replace(NOMINAL, mod_freq_hz=50e6)
+    frames = sweep({}, n_frames=2, camera=camera, amplitude_scale=20.0)
+    config, facts = adopt_recording(frames, NOMINAL, keep_units=False)
+    assert config.mod_freq_hz == 50e6 and facts["mod_freq_from_recording"]
+    # table 0.5-albedo-like scene: the grey world recovers the units within the scene's spread
+    assert facts["amplitude_scale"] == pytest.approx(20.0, rel=0.35)
+    assert facts["median_albedo_after"] == pytest.approx(0.5)
+    # monitoring: units that give plausible albedo are kept; implausible ones are not
+    same = sweep({}, n_frames=2)
+    assert adopt_recording(same, NOMINAL, keep_units=True)[1]["amplitude_scale"] == 1.0
+    assert adopt_recording(frames, NOMINAL, keep_units=True)[1]["amplitude_scale"] > 5.0
+
+
+def test_best_shift_is_the_robust_location():
+    rng = np.random.default_rng(0)
+    r = np.concatenate([rng.normal(3.0, 1.0, 900), np.full(100, 50.0)])   # 10 % flying pixels
+    assert best_shift(r, np.ones_like(r)) == pytest.approx(3.0, abs=0.15)
+    assert np.mean(r) > 7.0
+    assert best_shift(np.array([np.nan]), np.array([1.0])) == 0.0
+
+
+@pytest.mark.parametrize("effect,params,edge", [
+    ("hand_eye", {"tz_mm": 9.95, "rx_mrad": 1.0}, {"tz_mm"}),     # signed: a search limit
+    ("multipath", {"gain": 0.0}, set()),                           # no multipath: physical
+    ("noise_model", {"scale": 4.0, "exponent": 1.0, "jitter_mm": 0.0}, {"scale"}),
+    ("wiggling", {"a1_mm": 3.0, "p1_rad": np.pi, "a2_mm": 1.0, "p2_rad": 0.0}, set()),
+    ("temperature_drift", {"max_mm": 8.0, "tau_frames": 5.0}, set()),  # shortest warm-up
+])
+def test_only_search_limits_count_as_edges(effect, params, edge):
+    full = {p.name: params.get(p.name, 0.5 * (p.low + p.high)) for p in free_params(effect)}
+    result = FitResult(effect, NOMINAL, full, len(full))
+    assert set(parameters_at_edge(result)) == edge
+
+
+FOREIGN = replace(NOMINAL.with_effect("noise_model", enabled=True, scale=0.5)
+                  .with_effect("pixel_offset", offset_mean_mm=-3.0), mod_freq_hz=50e6)
+
+
+@pytest.fixture(scope="module")
+def foreign(sweep):
+    """Another camera with nothing missing: quieter, another offset, other amplitude units
+    and another frequency."""
+    return analyse(sweep({}, camera=FOREIGN, amplitude_scale=10.0), max_effects=1)
+
+
+def test_a_foreign_camera_gets_its_profile_measured(foreign):
+    assert "pixel_offset" in foreign.profile and "noise_model" in foreign.profile
+    assert foreign.parameters["pixel_offset"]["offset_mean_mm"] == pytest.approx(-3.0, abs=1.0)
+    assert foreign.profile_facts["mod_freq_hz"] == 50e6
+    assert foreign.profile_facts["amplitude_scale"] == pytest.approx(10.0, rel=0.35)
+    assert any("lower than nominal" in w for w in foreign.profile_words)
+    assert foreign.unexplained == []
+
+
+@pytest.mark.xfail(strict=True, reason="issue 13, open: on this quiet 50 MHz camera the "
+                   "predictor's Gaussian pixel footprint at depth edges (one reference sample "
+                   "per pixel) differs from the supersampled render enough to be named "
+                   "mixed_pixels (psf 0.49 px vs 0.3)")
+def test_nothing_is_named_on_a_foreign_camera_with_nothing_missing(foreign):
+    assert foreign.selected == []

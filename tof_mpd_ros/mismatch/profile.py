@@ -1,0 +1,157 @@
+"""The camera's profile: what every ToF camera has its own values of, found before naming physics.
+
+A real camera differs from the nominal cell in everything at once. Some of it is the camera
+itself and says nothing about missing physics: its modulation frequency (the recording states
+it), the units of its amplitude, its noise law, its per-pixel offset and gain, its wiggling and
+its amplitude-dependent bias. :func:`adopt_recording` takes what the recording states and the
+amplitude units; the analysis then fits :data:`PROFILE_EFFECTS` first (:mod:`.analysis`) and
+only then ranks the scene, pose and timing effects (:data:`SCENE_EFFECTS`) on top.
+
+Amplitude units. The simulator's direct return is ``a = P ρ cosθ / r²``; a camera reports ``k·a``
+in its own units. From one camera's range and amplitude, ``k`` and the scene's albedo ρ are
+degenerate (only ``k ρ`` is seen), and the noise law in the camera's units scales with ``k``
+too. :func:`with_amplitude_units` applies ``k`` to every amplitude-unit quantity of a config
+(light power, the noise law's read/shot/ambient terms, the amplitude-bias reference, the
+validity threshold), which leaves every predicted *range* and its noise unchanged and changes
+only the albedo inferred from the amplitude — hence the interreflection's strength relative to
+the direct return. ``k`` is chosen so that the scene's median inferred albedo is
+:data:`GREY_WORLD_ALBEDO` (a stated assumption: a grey world), and reported; a camera whose
+units the given config already matches keeps them (calibrate-then-monitor).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from ..frame import ToFFrame
+from ..sim.tof import ToFConfig
+from ..sim.tof.phasor import direct_phasor
+from ..sim.tof.reference import surface_from_reference
+from .predict import fill_holes
+
+#: effects every camera has its own values of (fitted first, reported as the camera's profile)
+PROFILE_EFFECTS: tuple[str, ...] = ("noise_model", "pixel_offset", "wiggling", "amplitude_bias")
+#: scene, pose and timing physics, ranked on top of the camera's profile
+SCENE_EFFECTS: tuple[str, ...] = ("multipath", "mixed_pixels", "lens_scatter", "subsurface",
+                                  "phase_wrapping", "temperature_drift", "time_offset",
+                                  "hand_eye")
+#: the assumed median albedo of a scene when the amplitude units are unknown
+GREY_WORLD_ALBEDO = 0.5
+#: inferred albedo is implausible for a config's amplitude units when its median leaves this
+#: range or more than ``BRIGHT_SHARE`` of the pixels come out brighter than a white diffuser
+PLAUSIBLE_MEDIAN_ALBEDO = (0.15, 0.95)
+BRIGHT_SHARE = 0.05
+BRIGHT_ALBEDO = 1.05
+
+
+def with_amplitude_units(config: ToFConfig, scale: float) -> ToFConfig:
+    """``config`` for a camera whose amplitude is ``scale`` × the simulator's.
+
+    Every amplitude-unit quantity scales with it (light power, read and ambient noise, the shot
+    term's gain, the amplitude-bias reference, the validity threshold), so predicted ranges and
+    their noise are unchanged; only albedo inferred from a measured amplitude changes.
+    """
+    k = float(scale)
+    noise = config.params("noise")
+    bias = config.params("amplitude_bias")
+    out = replace(config, light_power=config.light_power * k,
+                  min_amplitude=config.min_amplitude * k)
+    out = out.with_effect("noise", read_std=noise["read_std"] * k,
+                          shot_gain=noise["shot_gain"] * k, ambient=noise["ambient"] * k)
+    return out.with_effect("amplitude_bias", ref_amplitude=bias["ref_amplitude"] * k)
+
+
+def raw_albedo(frames: Sequence[ToFFrame], config: ToFConfig) -> np.ndarray:
+    """(N,) float64 unclipped albedo of every pixel with amplitude and reference, inferred by
+    inverting the direct return under ``config``'s light power (no smoothing)."""
+    out = []
+    for f in frames:
+        unit = surface_from_reference(fill_holes(f.reference_mm), f.intrinsics, 1.0)
+        a1 = np.abs(direct_phasor(unit.range_mm, unit.normal, unit.albedo,
+                                  f.intrinsics.ray_directions(), f.mod_freq_hz,
+                                  config.light_power))
+        ok = (a1 > 0) & np.isfinite(f.amplitude) & (f.amplitude > 0) & \
+            np.isfinite(f.reference_mm)
+        out.append(f.amplitude[ok] / a1[ok])
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def units_plausible(albedo: np.ndarray) -> bool:
+    """Whether albedo inferred under some amplitude units looks like a real scene's."""
+    if albedo.size == 0:
+        return True
+    lo, hi = PLAUSIBLE_MEDIAN_ALBEDO
+    return bool(lo <= np.median(albedo) <= hi
+                and np.mean(albedo > BRIGHT_ALBEDO) <= BRIGHT_SHARE)
+
+
+def adopt_recording(frames: Sequence[ToFFrame], config: ToFConfig, *,
+                    keep_units: bool) -> tuple[ToFConfig, dict[str, Any]]:
+    """The config the analysis starts from: the recording's modulation frequency and the
+    camera's amplitude units.
+
+    Args:
+        frames: the real frames (one camera).
+        config: the config given (or the nominal cell).
+        keep_units: keep ``config``'s amplitude units while the albedo they imply is plausible
+            (calibrate-then-monitor); otherwise (one-shot) choose them by the grey world.
+
+    Returns:
+        ``(config, facts)``; facts: ``mod_freq_hz``, ``mod_freq_from_recording`` (bool),
+        ``amplitude_scale`` (k applied to ``config``), ``median_albedo_before`` / ``_after``.
+    """
+    facts: dict[str, Any] = {}
+    freq = float(frames[0].mod_freq_hz)
+    facts["mod_freq_from_recording"] = freq != float(config.mod_freq_hz)
+    if facts["mod_freq_from_recording"]:
+        config = replace(config, mod_freq_hz=freq)
+    facts["mod_freq_hz"] = freq
+    albedo = raw_albedo(frames, config)
+    median = float(np.median(albedo)) if albedo.size else float("nan")
+    facts["median_albedo_before"] = median
+    scale = 1.0
+    if albedo.size and median > 0 and not (keep_units and units_plausible(albedo)):
+        scale = median / GREY_WORLD_ALBEDO
+    facts["amplitude_scale"] = scale
+    facts["median_albedo_after"] = median / scale if albedo.size else float("nan")
+    return (with_amplitude_units(config, scale) if scale != 1.0 else config), facts
+
+
+def describe_profile(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any],
+                     effects: Sequence[str]) -> list[str]:
+    """The camera's profile in words, relative to the nominal cell ("noise 3.6× lower than
+    nominal, offset −4.1 mm")."""
+    words = [f"modulation frequency {facts['mod_freq_hz'] / 1e6:.4g} MHz"
+             + (" (from the recording)" if facts.get("mod_freq_from_recording") else "")]
+    k = facts.get("amplitude_scale", 1.0)
+    if k != 1.0:
+        words.append(f"amplitude units {k:.3g}× the simulator's (median albedo taken as "
+                     f"{GREY_WORLD_ALBEDO}: a grey world; albedo and units are degenerate)")
+    for name in effects:
+        p = fitted.params(name)
+        if name == "noise_model":
+            s = float(p["scale"])
+            level = (f"{s:.2g}× the nominal noise" if s >= 1 else
+                     f"noise {1 / s:.2g}× lower than nominal")
+            words.append(f"{level} (amplitude exponent {float(p['exponent']):.2g}, "
+                         f"jitter {float(p['jitter_mm']):.2g} mm)")
+        elif name == "pixel_offset":
+            words.append(f"offset {float(p['offset_mean_mm']):+.1f} mm (nominal "
+                         f"{float(nominal.params(name)['offset_mean_mm']):+.1f}), pixel spread "
+                         f"{float(p['offset_std_mm']):.1f} mm, gain spread "
+                         f"{100 * float(p['gain_std']):.2g} %")
+        elif name == "wiggling":
+            words.append(f"wiggle {float(p['a1_mm']):.1f} mm at 4φ, {float(p['a2_mm']):.1f} mm "
+                         "at 8φ")
+        elif name == "amplitude_bias":
+            words.append(f"amplitude bias {float(p['bias_mm']):+.1f} mm (exponent "
+                         f"{float(p['exponent']):.2g})")
+    return words
+
+
+__all__ = ["GREY_WORLD_ALBEDO", "PROFILE_EFFECTS", "SCENE_EFFECTS", "adopt_recording",
+           "describe_profile", "raw_albedo", "units_plausible", "with_amplitude_units"]
