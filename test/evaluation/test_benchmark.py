@@ -248,7 +248,8 @@ def _misses(noisy: float, beyond: float) -> dict:
 
 
 @pytest.mark.parametrize("noisy,beyond,lever", [
-    (0.1, 0.7, "--target-clip-mm"), (0.7, 0.1, "more averaging"), (0.2, 0.2, "F's fit")])
+    (0.1, 0.7, "out of its reach"), (0.7, 0.1, "noise-limited: the local mean"),
+    (0.2, 0.2, "distortion F did not learn")])
 def test_a_forest_ahead_is_explained_by_what_the_misses_are_made_of(noisy, beyond, lever):
     cmp = compare_with_paper(_acc(RFD=(0.70, 0.55)), {"misses": _misses(noisy, beyond)})
     why = cmp["findings"][0]["why"]

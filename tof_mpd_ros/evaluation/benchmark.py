@@ -476,15 +476,16 @@ def _miss_text(names: Sequence[str], evidence: Mapping[str, Any]) -> str:
         return text
     noisy, beyond = own.get("noise_limited") or 0.0, own.get("beyond_clip") or 0.0
     if beyond >= 0.5:
-        text += (" Most of the proposed method's misses lie beyond F's truncation: a larger "
-                 "target range (--target-clip-mm) is the lever, not more training.")
+        text += (f" Most of the proposed method's misses lie beyond F's ±{clip:.0f} mm "
+                 "truncation, out of its reach by construction (a wider truncation reaches "
+                 "them at a cost elsewhere: tof-mpd train chooses it on validation frames, "
+                 "--target-clip-mm).")
     elif noisy >= 0.5:
-        text += (" Most of the proposed method's misses are noise-limited: more averaging, "
-                 "not a better bias estimate, is the lever.")
+        text += (" Most of the proposed method's misses are noise-limited: the local mean is "
+                 "within 5 mm, the pixel's own noise is not.")
     else:
-        text += (" Most of the proposed method's misses are bias within F's reach: F's fit "
-                 "(training data and schedule; docs/results.md has the learning curves) is "
-                 "the lever.")
+        text += (" Most of the proposed method's misses are bias within F's reach (neither "
+                 "noise-limited nor beyond the truncation): distortion F did not learn.")
     return text
 
 
