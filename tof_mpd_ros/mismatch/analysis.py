@@ -184,9 +184,19 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
             progress: Callable[[str], None] | None = None) -> Analysis:
     """Locate, name, model and show the sim-vs-real mismatch of ``frames``.
 
+    Two workflows. *One-shot* (``config`` None): the recording's modulation frequency and the
+    amplitude units are adopted (:func:`.profile.adopt_recording`), the camera's profile
+    (:data:`.profile.PROFILE_EFFECTS`) is fitted first and reported apart, and the scene, pose
+    and timing physics is named on top of it (``selected``), each candidate judged with the
+    camera's level free and the profile refitted with it. *Calibrate-then-monitor*
+    (``config`` from an earlier run's ``fitted_config.json``): every candidate, the profile's
+    included, is ranked against that config, so ``selected`` holds what changed since, and is
+    empty when nothing did.
+
     Args:
         frames: real frames with references (one camera).
-        config: the simulator configuration to diagnose (None = the nominal cell).
+        config: the simulator configuration to diagnose (None = one-shot from the nominal
+            cell).
         max_effects: most effects to select (greedy).
         candidates: effect names to consider.
         reference_noise_mm: std of the reference range, mm.
