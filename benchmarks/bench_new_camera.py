@@ -10,8 +10,9 @@ Its scenes come from their own seed. The workflow is the user's:
 2. ``tof-mpd calibrate intrinsic`` on the checkerboard captures;
 3. ``tof-mpd train`` with each variant below (same seed, same frames) and ``tof-mpd evaluate``
    of it on the test frames (every stage, per region by distance to the edges, G's edges);
-4. ``tof-mpd benchmark`` of the first variant against the six baselines on the same frames
-   (the baselines do not depend on the variant).
+4. ``tof-mpd benchmark`` of the first variant (``default``: ``tof-mpd train`` with nothing
+   but the data) against the six baselines on the same frames (the baselines do not depend on
+   the variant).
 
 Variants (the ablations issue 16 asks for): ``paper`` (T = 15 mm, G thresholds 0.3 / 0.6),
 ``auto-T`` (T from the training data alone), ``default`` (the trainer's defaults: T chosen on
@@ -19,7 +20,8 @@ the validation frames among 15, 30 and the data's own, G's thresholds chosen the
 Every number lands in OUT/summary.json; the table is printed with the CPU.
 
 Usage: ``python benchmarks/bench_new_camera.py OUT [--train-scenes 30 --test-scenes 8 --views 4
---calibration 60 --spp 64 --epochs 20 --samples 2500 --quick]``. Rendering takes a few seconds
+--calibration 60 --spp 64 --epochs E --samples S --quick]`` (the training schedule defaults to
+``tof-mpd train``'s). Rendering takes a few seconds
 per frame on 2 cores; ``--reuse`` keeps an existing OUT/data.
 """
 
@@ -40,9 +42,9 @@ from tof_mpd_ros.sim.dataset import DatasetSpec, generate_dataset
 from tof_mpd_ros.sim.tof import ToFConfig
 
 VARIANTS = {
+    "default": [],  # tof-mpd train as a user runs it: T and G thresholds chosen on validation
     "paper": ["--target-clip-mm", "15", "--edge-thresholds", "paper"],
     "auto-T": ["--target-clip-mm", "auto", "--edge-thresholds", "paper"],
-    "default": [],  # T chosen on validation among 15, 30 and auto; G thresholds tuned
 }
 
 
@@ -93,8 +95,10 @@ def main() -> None:
     parser.add_argument("--spp", type=int, default=64)
     parser.add_argument("--seed", type=int, default=16)
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
-    parser.add_argument("--epochs", type=int, default=20)
-    parser.add_argument("--samples", type=int, default=2500, help="samples per frame and epoch")
+    parser.add_argument("--epochs", type=int, default=None,
+                        help="training epochs (default: tof-mpd train's)")
+    parser.add_argument("--samples", type=int, default=None,
+                        help="samples per frame and epoch (default: tof-mpd train's)")
     parser.add_argument("--quick", action="store_true", help="the baselines' quick grids")
     parser.add_argument("--variants", default=",".join(VARIANTS))
     parser.add_argument("--reuse", action="store_true", help="keep an existing OUT/data")
@@ -111,9 +115,10 @@ def main() -> None:
     for k, name in enumerate(args.variants.split(",")):
         w = out / f"weights_{name}.npz"
         t = time.perf_counter()
+        schedule = ([*(["--epochs", str(args.epochs)] if args.epochs else []),
+                     *(["--max-samples-per-frame", str(args.samples)] if args.samples else [])])
         run(["train", str(data / "md_train"), "--calibration", str(out / "calib.npz"), "-o",
-             str(w), "--epochs", str(args.epochs), "--max-samples-per-frame", str(args.samples),
-             "--seed", "0", "--overwrite", *VARIANTS[name]])
+             str(w), *schedule, "--seed", "0", "--overwrite", *VARIANTS[name]])
         run(["evaluate", str(data / "md_test"), "--weights", str(w), "-o",
              str(out / f"eval_{name}")])
         trained = json.loads(w.with_suffix(".json").read_text())
@@ -129,7 +134,8 @@ def main() -> None:
                  *(["--quick"] if args.quick else [])])
             doc = json.loads((bench / "results.json").read_text())
             results["baselines"] = {"table": doc["table"],
-                                    "ranking": doc["comparison"]["statement"]}
+                                    "ranking": doc["comparison"]["statement"],
+                                    "findings": doc["comparison"]["findings"]}
             print_table("benchmark with " + name, doc["table"])
         timings[name + "_s"] = time.perf_counter() - t
         print_stages(name, evaluation["summary_5mm"])
