@@ -9,7 +9,7 @@ import pytest
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.mismatch import analyse
-from tof_mpd_ros.mismatch.analysis import parameters_at_edge
+from tof_mpd_ros.mismatch.analysis import parameters_at_edge, within_units_doubt
 from tof_mpd_ros.mismatch.fit import FitResult, free_params
 from tof_mpd_ros.mismatch.likelihood import best_shift
 from tof_mpd_ros.mismatch.predict import noise_std_mm
@@ -78,6 +78,14 @@ def foreign(sweep):
     """Another camera with nothing missing: quieter, another offset, other amplitude units
     and another frequency."""
     return analyse(sweep({}, camera=FOREIGN, amplitude_scale=10.0), max_effects=1)
+
+
+@pytest.mark.parametrize("gain,doubt", [(1.33, True), (0.7, True), (2.2, False), (0.1, False)])
+def test_a_multipath_gain_the_unknown_units_explain_is_not_named(gain, doubt):
+    """Albedo and amplitude units are degenerate; interreflection scales with albedo: with
+    the units assumed (grey world), a gain within 0.6-1.6 is not evidence of missing physics."""
+    assert within_units_doubt(FitResult("multipath", NOMINAL, {"gain": gain}, 1)) is doubt
+    assert not within_units_doubt(FitResult("mixed_pixels", NOMINAL, {"psf_sigma_px": 1.0}, 1))
 
 
 def test_a_foreign_camera_gets_its_profile_measured(foreign):

@@ -229,7 +229,8 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
     residual0, sigma0 = _residuals(problem, None)
     location = locate(descriptors, residual0, sigma0)
 
-    search = _Search(problem, descriptors, location, min_score, min_t, progress)
+    search = _Search(problem, descriptors, location, min_score, min_t, progress,
+                     units_assumed=not monitor)
     profile: list[str] = []
     if not monitor:
         # the camera first: what every camera has its own values of, then the physics on top
@@ -272,6 +273,9 @@ class _Search:
     refit: list[str] = field(default_factory=list)
     #: every effect taken so far, in order
     taken: list[str] = field(default_factory=list)
+    #: the amplitude units were chosen by the grey world (one-shot): albedo, hence the
+    #: interreflection's strength, is known only within ``UNITS_DOUBT``
+    units_assumed: bool = False
 
     def greedy(self, candidates: Sequence[str], limit: int) -> list[str]:
         """Take up to ``limit`` of ``candidates``, one per round, while one is significant."""
@@ -311,6 +315,16 @@ class _Search:
         for r in results:
             if not _significant(r, threshold, self.min_t):
                 return None
+            if self.units_assumed and within_units_doubt(r):
+                self.unexplained.append({
+                    "round": k + 1, "effect": r.effect, "score": round(r.score, 3),
+                    "parameters_at_edge": {},
+                    "why": f"gain {r.parameters['gain']:.2f} is within what the unknown "
+                           "amplitude units allow (the grey world's albedo may be off by "
+                           f"{UNITS_DOUBT[0]:.1f}-{UNITS_DOUBT[1]:.1f}x, and interreflection "
+                           "scales with albedo): not named as missing physics",
+                    "where": self.location.get("flagged", [])[:3]})
+                continue
             edge = parameters_at_edge(r)
             if not edge:
                 return r
@@ -395,6 +409,19 @@ def _rebased(p: Problem, config: ToFConfig) -> Problem:
               for u, q in zip(p.usable, rebased, strict=True)]
     return Problem(p.real_mm, rebased, p.split, usable, p.reference_noise_mm, p.edge_jump_mm,
                    free_level=p.free_level)
+
+
+#: how far a scene's median albedo may sit from the grey world's 0.5 (0.3-0.8): the factor by
+#: which interreflection is uncertain when the amplitude units were assumed
+UNITS_DOUBT = (0.6, 1.6)
+
+
+def within_units_doubt(result: FitResult) -> bool:
+    """A multipath gain the unknown amplitude units could explain alone (albedo and units are
+    degenerate, and the indirect share of the return scales with the senders' albedo)."""
+    if result.effect != "multipath" or "gain" not in result.parameters:
+        return False
+    return UNITS_DOUBT[0] <= result.parameters["gain"] <= UNITS_DOUBT[1]
 
 
 #: a fitted parameter within this fraction of its range from an edge sits at the edge

@@ -172,9 +172,9 @@ td,th{{border:1px solid #ccc;padding:3px 6px;font-size:13px;vertical-align:top}}
 <h1>Sim-vs-real mismatch</h1>
 <p><b>Verdict:</b> {html.escape(doc["verdict"])} ({html.escape(doc["workflow"])})</p>
 <p><b>The camera's profile:</b> {html.escape(doc["camera_profile"]["summary"])}</p>
-{"".join(f"<p><b>Not explained:</b> {html.escape(u['effect'])} fitted "
-         f"{html.escape(json.dumps(u['parameters_at_edge']))} at the edge of its range: "
-         f"{html.escape(u['why'])}</p>" for u in doc["unexplained"])}
+{"".join(f"<p><b>Not named:</b> {html.escape(u['effect'])} "
+         f"{html.escape(json.dumps(u['parameters_at_edge']) if u['parameters_at_edge'] else '')}"
+         f" — {html.escape(u['why'])}</p>" for u in doc["unexplained"])}
 <p>Fitted parameters: {html.escape(json.dumps(doc["parameters"]))}</p>
 <h2>Held-out residuals before / after</h2>{_table(metric_rows, ["metric", "before", "after"])}
 {imgs}
