@@ -28,6 +28,7 @@ import numpy as np
 
 from ...errors import InputError
 from ..tof.config import DEFAULT_LIGHT_POWER
+from ..tof.world import spot_profile as world_spot_profile
 
 
 @dataclass(frozen=True)
@@ -75,9 +76,5 @@ def spot_profile(cos_theta: np.ndarray | float, light: SpotLight | None = None) 
         width and the cutoff (θ, β, γ in radians), 0 from the cutoff on.
     """
     spot = light if light is not None else SpotLight()
-    c = np.clip(np.asarray(cos_theta, dtype=np.float64), -1.0, 1.0)
-    cutoff = math.radians(spot.cone_half_angle_deg)
-    beam = math.radians(spot.beam_width_deg)
-    ramp = (cutoff - np.arccos(c)) / (cutoff - beam)
-    inner = np.where(c >= math.cos(beam), 1.0, ramp)
-    return np.where(c > math.cos(cutoff), inner, 0.0)
+    # one falloff for both renderers: the built-in transport's
+    return world_spot_profile(cos_theta, spot.cone_half_angle_deg, spot.beam_width_deg)
