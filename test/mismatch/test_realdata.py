@@ -194,6 +194,16 @@ def test_adi_frame_of_a_synthetic_office(tmp_path):
     assert np.all(np.isfinite(kept.reference_mm[30:34, 40:44]))
 
 
+def test_load_frames_reads_an_adi_folder_as_its_long_range_mode(tmp_path):
+    from tof_mpd_ros.mismatch.data import load_frames
+    k = Intrinsics.from_fov(256, 256, 75.0)
+    truth, _ = _room_range(k, person_x_mm=-550.0)
+    _write_adi(tmp_path, 3, truth)
+    frames = load_frames(tmp_path)
+    assert len(frames) == 1 and frames[0].intrinsics.shape == (64, 64)
+    np.testing.assert_array_equal(frames[0].range_mm, realdata.adi_frame(tmp_path, 3).range_mm)
+
+
 def test_mode_disagreement_recovers_a_known_offset(tmp_path):
     k = Intrinsics.from_fov(256, 256, 75.0)
     # the person moved between the modes; mode 2 reads 7 mm long everywhere

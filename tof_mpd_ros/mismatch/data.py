@@ -26,7 +26,8 @@ SPLIT_TILE_PX = 8
 def load_frames(path: str | Path) -> list[ToFFrame]:
     """Frames of a recording (directory or ``.mcap``) or an interchange ``.npz``; a folder laid
     out like the Azure Kinect sample (``depth_000.npy``, ``ir_000.npy``, ``calibration.json``)
-    becomes one frame with its plane-fit reference (:mod:`.realdata`).
+    becomes one frame with its plane-fit reference (:mod:`.realdata`), and so does an Analog
+    Devices folder (``depth_mode3.npy`` ...: its mode 3).
 
     Raises:
         MismatchError: the path does not exist, holds no frame, or a frame has no reference.
@@ -34,9 +35,11 @@ def load_frames(path: str | Path) -> list[ToFFrame]:
     path = Path(path)
     if not path.exists():
         raise MismatchError(f"{path}: no such file or directory")
-    from .realdata import azure_kinect_frame, is_azure_kinect_dir
+    from .realdata import adi_frame, azure_kinect_frame, is_adi_dir, is_azure_kinect_dir
     if is_azure_kinect_dir(path):
         return [azure_kinect_frame(path)[0]]
+    if is_adi_dir(path):
+        return [adi_frame(path, 3)]   # the long-range mode; the CLI's --mode picks another
     try:
         if path.suffix == ".npz":
             from ..recordings import load_npz
