@@ -123,3 +123,43 @@ def test_oracle_config_is_nominal_plus_the_labels():
     assert [n for n in CONCEALABLE if cfg.enabled(n) != nominal.enabled(n)] == \
         [n for n in ("subsurface", "hand_eye") if not nominal.enabled(n)]
     assert truth_config([]).to_dict() == nominal.to_dict()
+
+
+def test_another_camera_conceals_physics_not_its_own_values():
+    """On a drawn camera the concealed effects are scene, pose and timing physics (less what a
+    path tracer renders itself); the camera's values go to the label, the recording states the
+    frequency, the amplitude is in the camera's units, and the oracle gets all of it."""
+    from tof_mpd_ros.camera import Intrinsics
+    from tof_mpd_ros.mismatch.cases import (
+        PATHTRACE_OWN,
+        PROFILE_FREQUENCIES_HZ,
+        generate_case,
+        truth_config,
+    )
+    from tof_mpd_ros.mismatch.profile import SCENE_EFFECTS
+    assert all(set(p) <= set(SCENE_EFFECTS) for p in case_plan(30, 3, "profile"))
+    plan = case_plan(30, 3, "pathtrace")
+    assert all(not set(p) & set(PATHTRACE_OWN) for p in plan) and any(p for p in plan)
+    case = generate_case(np.random.default_rng(5), ("lens_scatter",), n_frames=2,
+                         intrinsics=Intrinsics.from_fov(24, 18, 74.0), base="profile")
+    camera = case.labels["camera"]
+    assert camera["mod_freq_hz"] in PROFILE_FREQUENCIES_HZ
+    assert all(f.mod_freq_hz == camera["mod_freq_hz"] for f in case.frames)
+    assert 0.01 <= camera["amplitude_scale"] <= 100.0
+    oracle = truth_config(case.labels["effects"], camera)
+    assert oracle.light_power == pytest.approx(ToFConfig.nominal().light_power
+                                               * camera["amplitude_scale"])
+    assert oracle.params("pixel_offset")["seed"] == camera["effects"]["pixel_offset"]["seed"]
+    assert oracle.enabled("lens_scatter") and oracle.enabled("noise_model")
+    with pytest.raises(ValueError):
+        generate_case(np.random.default_rng(5), ("multipath",), base="pathtrace")
+
+
+def test_camera_first_answers_are_not_rejudged_by_the_old_thresholds():
+    from tof_mpd_ros.mismatch.benchmark import reselect
+    old = {"selected": ["wiggling"], "parameters": {}, "metrics": {"rmse_before_mm": 5.0,
+                                                                   "rmse_after_mm": 4.0},
+           "ranking": [{"round": 1, "effect": "wiggling", "score": 3.0, "t": 1.0}]}
+    assert reselect(old)["selected"] == []          # below today's threshold: none
+    new = {**old, "selected": ["multipath"], "camera_profile": {"effects": []}}
+    assert reselect(new) is new                      # round 1 there is the profile's

@@ -244,9 +244,14 @@ def text_table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
 
 
 def reselect(result: dict[str, Any]) -> dict[str, Any]:
-    """A stored answer with the selection re-derived from its stored ranking under the current
-    thresholds (the fits are unchanged). Only a round-1 winner that no longer qualifies can
-    change the answer (to ``none``, with the "after" metrics equal to "before")."""
+    """A stored single-phase answer (before the camera-first workflow) with the selection
+    re-derived from its stored ranking under the current thresholds (the fits are unchanged).
+    Only a round-1 winner that no longer qualifies can change the answer (to ``none``, with
+    the "after" metrics equal to "before"). Camera-first answers are returned as they are."""
+    if "camera_profile" in result:
+        # a camera-first answer: its first round is the profile's, not the physics'; the
+        # stored rounds cannot be re-judged without the fits
+        return result
     first = [r for r in result["ranking"] if r["round"] == 1]
     if not first or not result["selected"]:
         return result
