@@ -103,3 +103,16 @@ def test_a_foreign_camera_gets_its_profile_measured(foreign):
                    "mixed_pixels (psf 0.49 px vs 0.3)")
 def test_nothing_is_named_on_a_foreign_camera_with_nothing_missing(foreign):
     assert foreign.selected == []
+
+
+def test_calibrate_then_monitor_names_only_what_changed(foreign, sweep):
+    """The one-shot run's fitted config, given back on later frames of the same camera: nothing
+    is named while nothing changed; a warm-up drift that appears is named alone."""
+    fitted = foreign.config_after
+    same = analyse(sweep({}, camera=FOREIGN, amplitude_scale=10.0, seed=1), fitted,
+                   max_effects=1)
+    assert same.workflow == "monitor" and same.selected == [] and same.profile == []
+    assert same.profile_facts["amplitude_scale"] == 1.0      # the fitted units are kept
+    drift = analyse(sweep({"temperature_drift": {"max_mm": 8.0, "tau_frames": 5.0}},
+                          camera=FOREIGN, amplitude_scale=10.0, seed=1), fitted, max_effects=1)
+    assert drift.selected == ["temperature_drift"]
