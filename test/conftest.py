@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -69,21 +70,32 @@ except ImportError:  # pragma: no cover - torch is a hard dependency, but keep c
     pass
 
 
+def real_data_dir(name: str, env_var: str, is_layout: Callable[[Path], bool]) -> Path:
+    """A folder of real frames kept beside the repository, ``../shared/realdata/NAME``
+    relative to this checkout, or wherever ``env_var`` points. It is neither in the package
+    nor in an installable extra, so a checkout without it skips the tests that need it (with
+    this reason) instead of failing; beside the shared data, as in the README's test
+    environment, nothing skips."""
+    beside = Path(__file__).resolve().parents[2] / "shared" / "realdata" / name
+    candidate = Path(os.environ.get(env_var, beside))
+    if is_layout(candidate):
+        return candidate
+    pytest.skip(f"the real frames ../shared/realdata/{name} (beside the repository, or "
+                f"{env_var}) are not present")
+
+
 @pytest.fixture(scope="session")
 def azure_kinect_dir() -> Path:
-    """The real Azure Kinect frame (depth, IR, factory calibration).
-
-    It is data kept beside the repository, ``../shared/realdata/azure_kinect_mug`` relative to
-    this checkout, or wherever ``TOF_MPD_AZURE_KINECT_DIR`` points. It is neither in the
-    package nor in an installable extra, so a checkout without it skips the tests that need it
-    (with this reason) instead of failing; beside the shared data, as in the README's test
-    environment, nothing skips.
-    """
+    """The real Azure Kinect frame (depth, IR, factory calibration)."""
     from tof_mpd_ros.mismatch import realdata
 
-    beside = Path(__file__).resolve().parents[2] / "shared" / "realdata" / "azure_kinect_mug"
-    candidate = Path(os.environ.get("TOF_MPD_AZURE_KINECT_DIR", beside))
-    if realdata.is_azure_kinect_dir(candidate):
-        return candidate
-    pytest.skip("the real Azure Kinect frame (../shared/realdata/azure_kinect_mug beside the "
-                "repository, or TOF_MPD_AZURE_KINECT_DIR) is not present")
+    return real_data_dir("azure_kinect_mug", "TOF_MPD_AZURE_KINECT_DIR",
+                         realdata.is_azure_kinect_dir)
+
+
+@pytest.fixture(scope="session")
+def adi_dir() -> Path:
+    """The real Analog Devices frames (two modes of one office scene)."""
+    from tof_mpd_ros.mismatch import realdata
+
+    return real_data_dir("adi_tof_office", "TOF_MPD_ADI_DIR", realdata.is_adi_dir)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -55,18 +54,6 @@ def test_azure_kinect_frame_has_a_plane_reference(azure_kinect_dir):
 
 #: a synthetic office: a box room (back wall, floor, ceiling, side walls), mm, camera frame
 ROOM_PLANES = ((2, 2000.0), (1, 700.0), (1, -900.0), (0, -1100.0), (0, 1100.0))
-
-
-@pytest.fixture(scope="module")
-def adi_dir() -> Path:
-    """The real ADI frames: ``../shared/realdata/adi_tof_office`` beside the checkout, or
-    wherever ``TOF_MPD_ADI_DIR`` points; skipped when they are not there."""
-    beside = Path(__file__).resolve().parents[3] / "shared" / "realdata" / "adi_tof_office"
-    candidate = Path(os.environ.get("TOF_MPD_ADI_DIR", beside))
-    if realdata.is_adi_dir(candidate):
-        return candidate
-    pytest.skip("the real ADI frames (../shared/realdata/adi_tof_office beside the repository, "
-                "or TOF_MPD_ADI_DIR) are not present")
 
 
 def _room_range(k: Intrinsics, person_x_mm: float | None = None) -> tuple[np.ndarray, np.ndarray]:

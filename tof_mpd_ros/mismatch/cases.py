@@ -312,9 +312,7 @@ def _traced(scene: Scene, pose_mm: np.ndarray, intrinsics: Intrinsics, cfg: ToFC
     from ..sim.pathtrace.light import SpotLight
     from ..sim.pathtrace.render import DATASET_RR_DEPTH, render_phasor
 
-    p = cfg.params("multipath")
-    light = SpotLight(cone_half_angle_deg=float(p["cutoff_deg"]),
-                      beam_width_deg=float(p["beam_deg"]), light_power=cfg.light_power)
     return render_phasor(scene, pose_mm, intrinsics, mod_freq_hz=cfg.mod_freq_hz,
-                         spp=PATHTRACE_SPP, max_depth=-1, seed=seed, light=light,
+                         spp=PATHTRACE_SPP, max_depth=-1, seed=seed,
+                         light=SpotLight.of_config(cfg),
                          spp_per_pass=min(PATHTRACE_SPP, 64), rr_depth=DATASET_RR_DEPTH)

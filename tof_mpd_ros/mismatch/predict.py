@@ -125,14 +125,20 @@ def infer_albedo(frame: ToFFrame, config: ToFConfig, smooth_px: int = 3) -> np.n
     Returns:
         (H, W) float64 albedo in ``ALBEDO_RANGE``; 0.5 where amplitude or reference is missing.
     """
+    rho = _nan_median(raw_albedo(frame, config.light_power), smooth_px)
+    return np.clip(np.where(np.isfinite(rho), rho, 0.5), *ALBEDO_RANGE)
+
+
+def raw_albedo(frame: ToFFrame, light_power: float) -> np.ndarray:
+    """(H, W) float64 albedo that makes each pixel's direct return off the reference geometry
+    equal its real amplitude under ``light_power`` (amplitude·mm²), unclipped and unsmoothed;
+    NaN where the reference gives no return."""
     k = frame.intrinsics
     unit = surface_from_reference(fill_holes(frame.reference_mm), k, 1.0)
     a1 = np.abs(direct_phasor(unit.range_mm, unit.normal, unit.albedo, k.ray_directions(),
-                              frame.mod_freq_hz, config.light_power))
+                              frame.mod_freq_hz, light_power))
     with np.errstate(invalid="ignore", divide="ignore"):
-        rho = np.where(a1 > 0, frame.amplitude / a1, np.nan)
-    rho = _nan_median(rho, smooth_px)
-    return np.clip(np.where(np.isfinite(rho), rho, 0.5), *ALBEDO_RANGE)
+        return np.where(a1 > 0, frame.amplitude / a1, np.nan)
 
 
 def _nan_median(img: np.ndarray, size: int) -> np.ndarray:

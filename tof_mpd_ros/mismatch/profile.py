@@ -29,9 +29,7 @@ import numpy as np
 
 from ..frame import ToFFrame
 from ..sim.tof import ToFConfig
-from ..sim.tof.phasor import direct_phasor
-from ..sim.tof.reference import surface_from_reference
-from .predict import fill_holes
+from .predict import raw_albedo
 
 #: effects every camera has its own values of (fitted first, reported as the camera's profile)
 PROFILE_EFFECTS: tuple[str, ...] = ("noise_model", "pixel_offset", "wiggling", "amplitude_bias")
@@ -65,18 +63,14 @@ def with_amplitude_units(config: ToFConfig, scale: float) -> ToFConfig:
     return out.with_effect("amplitude_bias", ref_amplitude=bias["ref_amplitude"] * k)
 
 
-def raw_albedo(frames: Sequence[ToFFrame], config: ToFConfig) -> np.ndarray:
+def scene_albedo(frames: Sequence[ToFFrame], config: ToFConfig) -> np.ndarray:
     """(N,) float64 unclipped albedo of every pixel with amplitude and reference, inferred by
     inverting the direct return under ``config``'s light power (no smoothing)."""
     out = []
     for f in frames:
-        unit = surface_from_reference(fill_holes(f.reference_mm), f.intrinsics, 1.0)
-        a1 = np.abs(direct_phasor(unit.range_mm, unit.normal, unit.albedo,
-                                  f.intrinsics.ray_directions(), f.mod_freq_hz,
-                                  config.light_power))
-        ok = (a1 > 0) & np.isfinite(f.amplitude) & (f.amplitude > 0) & \
-            np.isfinite(f.reference_mm)
-        out.append(f.amplitude[ok] / a1[ok])
+        rho = raw_albedo(f, config.light_power)
+        ok = np.isfinite(rho) & (rho > 0) & np.isfinite(f.reference_mm)
+        out.append(rho[ok])
     return np.concatenate(out) if out else np.zeros(0)
 
 
@@ -110,7 +104,7 @@ def adopt_recording(frames: Sequence[ToFFrame], config: ToFConfig, *,
     if facts["mod_freq_from_recording"]:
         config = replace(config, mod_freq_hz=freq)
     facts["mod_freq_hz"] = freq
-    albedo = raw_albedo(frames, config)
+    albedo = scene_albedo(frames, config)
     median = float(np.median(albedo)) if albedo.size else float("nan")
     facts["median_albedo_before"] = median
     scale = 1.0
@@ -154,4 +148,4 @@ def describe_profile(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any
 
 
 __all__ = ["GREY_WORLD_ALBEDO", "PROFILE_EFFECTS", "SCENE_EFFECTS", "adopt_recording",
-           "describe_profile", "raw_albedo", "units_plausible", "with_amplitude_units"]
+           "describe_profile", "scene_albedo", "units_plausible", "with_amplitude_units"]

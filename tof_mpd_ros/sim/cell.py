@@ -194,9 +194,7 @@ class SimCell:
         from .pathtrace.render import DATASET_RR_DEPTH, render_phasor
 
         cam = self.camera
-        p = self.tof.params("multipath")
-        light = SpotLight(cone_half_angle_deg=float(p["cutoff_deg"]),
-                          beam_width_deg=float(p["beam_deg"]), light_power=self.tof.light_power)
+        light = SpotLight.of_config(self.tof)
         # (H, W) complex128 phasor of the window, every path, simulator amplitude units
         transport = render_phasor(scene, camera_to_base_mm, cam.window,
                                   mod_freq_hz=self.tof.mod_freq_hz, spp=self.pathtrace_spp,

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ...errors import InputError
-from ..tof.config import DEFAULT_LIGHT_POWER
+from ..tof.config import DEFAULT_LIGHT_POWER, ToFConfig
 from ..tof.world import spot_profile as world_spot_profile
 
 
@@ -55,6 +55,14 @@ class SpotLight:
                              f"cone_half_angle_deg={self.cone_half_angle_deg}")
         if not (math.isfinite(self.light_power) and self.light_power > 0.0):
             raise InputError(f"spot light: light_power must be > 0, got {self.light_power}")
+
+    @classmethod
+    def of_config(cls, config: ToFConfig) -> SpotLight:
+        """The camera's light as ``config`` describes it (the ``multipath`` effect's cone and
+        beam, the config's light power)."""
+        p = config.params("multipath")
+        return cls(cone_half_angle_deg=float(p["cutoff_deg"]),
+                   beam_width_deg=float(p["beam_deg"]), light_power=config.light_power)
 
     def as_dict(self) -> dict[str, float]:
         """Plain-type description: the two angles (degrees) and the power (amplitude·mm²)."""
