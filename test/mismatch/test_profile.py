@@ -48,6 +48,25 @@ def test_the_recording_sets_the_frequency_and_the_grey_world_the_units(sweep):
     assert adopt_recording(frames, NOMINAL, keep_units=True)[1]["amplitude_scale"] > 5.0
 
 
+def test_a_room_gets_interreflection_patches_of_its_own_scale(sweep):
+    """A leaf stays about a pixel's footprint: a scene 2 m away is sampled as coarsely, for
+    its size, as the cell at 0.3 m (else a room's plane holds millions of 4 mm leaves)."""
+    near = sweep({}, n_frames=1)
+    assert "patch_scale" not in adopt_recording(near, NOMINAL, keep_units=False)[1]
+    room = [replace(f, reference_mm=f.reference_mm * 5.0, range_mm=f.range_mm * 5.0)
+            for f in near]
+    config, facts = adopt_recording(room, NOMINAL, keep_units=False)
+    scale = facts["scene_distance_mm"] / 300.0
+    assert facts["patch_scale"] == pytest.approx(scale) and scale > 4.0
+    for key in ("leaf_mm", "bounce_patch_mm"):
+        assert config.params("multipath")[key] == pytest.approx(
+            NOMINAL.params("multipath")[key] * scale)
+    # monitoring keeps the given config's patches
+    kept, facts = adopt_recording(room, NOMINAL, keep_units=True)
+    assert "patch_scale" not in facts
+    assert kept.params("multipath")["leaf_mm"] == NOMINAL.params("multipath")["leaf_mm"]
+
+
 def test_best_shift_is_the_robust_location():
     rng = np.random.default_rng(0)
     r = np.concatenate([rng.normal(3.0, 1.0, 900), np.full(100, 50.0)])   # 10 % flying pixels

@@ -44,6 +44,12 @@ GREY_WORLD_ALBEDO = 0.5
 PLAUSIBLE_MEDIAN_ALBEDO = (0.15, 0.95)
 BRIGHT_SHARE = 0.05
 BRIGHT_ALBEDO = 1.05
+#: distance of the cell's table (mm): the nominal light power and interreflection patches are
+#: sized for it
+CELL_DISTANCE_MM = 300.0
+#: a recording whose median reference range exceeds this many cell distances gets its
+#: interreflection patches scaled with it (:func:`with_scene_distance`)
+PATCH_SCALING_FROM = 2.0
 
 
 def with_amplitude_units(config: ToFConfig, scale: float) -> ToFConfig:
@@ -61,6 +67,18 @@ def with_amplitude_units(config: ToFConfig, scale: float) -> ToFConfig:
     out = out.with_effect("noise", read_std=noise["read_std"] * k,
                           shot_gain=noise["shot_gain"] * k, ambient=noise["ambient"] * k)
     return out.with_effect("amplitude_bias", ref_amplitude=bias["ref_amplitude"] * k)
+
+
+def with_scene_distance(config: ToFConfig, distance_mm: float) -> ToFConfig:
+    """``config`` with the interreflection's patches (``multipath`` ``leaf_mm``,
+    ``bounce_patch_mm``) scaled by ``distance_mm`` / :data:`CELL_DISTANCE_MM`: a leaf stays
+    about one pixel's footprint, as in the cell (at 4 mm the support plane of a room, extended
+    across the light's cone, holds millions of leaves). Ranges are unchanged; the indirect
+    light is sampled as coarsely, relative to the scene, as in the cell."""
+    scale = float(distance_mm) / CELL_DISTANCE_MM
+    p = config.params("multipath")
+    return config.with_effect("multipath", **{k: float(p[k]) * scale
+                                             for k in ("leaf_mm", "bounce_patch_mm")})
 
 
 def scene_albedo(frames: Sequence[ToFFrame], config: ToFConfig) -> np.ndarray:
@@ -96,7 +114,9 @@ def adopt_recording(frames: Sequence[ToFFrame], config: ToFConfig, *,
 
     Returns:
         ``(config, facts)``; facts: ``mod_freq_hz``, ``mod_freq_from_recording`` (bool),
-        ``amplitude_scale`` (k applied to ``config``), ``median_albedo_before`` / ``_after``.
+        ``amplitude_scale`` (k applied to ``config``), ``median_albedo_before`` / ``_after``,
+        ``scene_distance_mm`` and, when the patches were scaled to it (one-shot, a scene
+        beyond ``PATCH_SCALING_FROM`` cell distances), ``patch_scale``.
     """
     facts: dict[str, Any] = {}
     freq = float(frames[0].mod_freq_hz)
@@ -104,6 +124,12 @@ def adopt_recording(frames: Sequence[ToFFrame], config: ToFConfig, *,
     if facts["mod_freq_from_recording"]:
         config = replace(config, mod_freq_hz=freq)
     facts["mod_freq_hz"] = freq
+    refs = [f.reference_mm[np.isfinite(f.reference_mm)] for f in frames]
+    distance = float(np.median(np.concatenate(refs))) if sum(r.size for r in refs) else 0.0
+    facts["scene_distance_mm"] = distance
+    if not keep_units and distance > PATCH_SCALING_FROM * CELL_DISTANCE_MM:
+        config = with_scene_distance(config, distance)
+        facts["patch_scale"] = distance / CELL_DISTANCE_MM
     albedo = scene_albedo(frames, config)
     median = float(np.median(albedo)) if albedo.size else float("nan")
     facts["median_albedo_before"] = median
@@ -148,4 +174,5 @@ def describe_profile(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any
 
 
 __all__ = ["GREY_WORLD_ALBEDO", "PROFILE_EFFECTS", "SCENE_EFFECTS", "adopt_recording",
-           "describe_profile", "scene_albedo", "units_plausible", "with_amplitude_units"]
+           "describe_profile", "scene_albedo", "units_plausible", "with_amplitude_units",
+           "with_scene_distance"]

@@ -50,6 +50,7 @@ from ..errors import MismatchError
 from ..frame import DEFAULT_MOD_FREQ_HZ, ToFFrame
 from ..sim.tof import ToFConfig
 from ..sim.tof.config import DEFAULT_LIGHT_POWER
+from .profile import CELL_DISTANCE_MM, with_scene_distance
 
 #: planes closer than this to parallel form no crease (neighbouring panels, or two fits of one
 #: slightly curved surface): they do not limit each other's fit, and the measurement decides
@@ -60,8 +61,6 @@ NFOV_UNBINNED_OFFSET = (192.0, 180.0)
 #: IR saturates here; saturated pixels are invalid
 IR_SATURATION = 65535
 PLANE_ALBEDO = 0.6
-#: distance of the cell's table, at which the nominal light power gives the nominal brightness
-CELL_DISTANCE_MM = 300.0
 #: light power of the simulated stand-in for the Kinect (amplitude·mm²): the cell's power
 #: scaled by (2 m / 0.3 m)², so the wall at ~2 m is as bright (and as noisy, ~2–3 mm) as the
 #: cell's table at 0.3 m
@@ -93,8 +92,11 @@ def light_power_for(distance_mm: float) -> float:
 
 
 def azure_kinect_config() -> ToFConfig:
-    """The nominal cell with the Kinect stand-in's light power (see ``KINECT_LIGHT_POWER``)."""
-    return replace(ToFConfig.nominal(), light_power=KINECT_LIGHT_POWER)
+    """The nominal cell with the Kinect stand-in's light power (see ``KINECT_LIGHT_POWER``)
+    and the interreflection's patches scaled to the room's 2 m, as for the ADI module
+    (:func:`adi_config`)."""
+    return replace(with_scene_distance(ToFConfig.nominal(), 2000.0),
+                   light_power=KINECT_LIGHT_POWER)
 
 
 def is_azure_kinect_dir(path: str | Path) -> bool:
@@ -545,11 +547,8 @@ def adi_config(scene_distance_mm: float = ADI_SCENE_DISTANCE_MM) -> ToFConfig:
       beyond the 5 m ambiguity range of 30 MHz), so a 30 MHz cell that wraps would contradict
       the recording.
     """
-    scale = scene_distance_mm / CELL_DISTANCE_MM
-    nominal = ToFConfig.nominal()
-    patches = {k: nominal.params("multipath")[k] * scale for k in ("leaf_mm", "bounce_patch_mm")}
-    cfg = (nominal.with_effect("phase_wrapping", enabled=False)
-           .with_effect("multipath", **patches))
+    cfg = with_scene_distance(ToFConfig.nominal().with_effect("phase_wrapping", enabled=False),
+                              scene_distance_mm)
     return replace(cfg, light_power=light_power_for(scene_distance_mm))
 
 

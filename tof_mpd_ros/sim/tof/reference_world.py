@@ -238,6 +238,22 @@ def _closing_size(uv: np.ndarray, cell_mm: float) -> int:
     return max(3, 2 * math.ceil(0.5 * gap) + 1)
 
 
+def _wall_runs(ci: np.ndarray, cj: np.ndarray, bins: np.ndarray,
+               shape: tuple[int, int]) -> list[np.ndarray]:
+    """The outline cells (``ci``, ``cj``) (C,) int split into runs: 8-connected cells whose
+    outward normals share a direction bin ``bins`` (C,) int. Returns index arrays into C."""
+    from scipy.ndimage import label
+
+    grid = np.full(shape, -1, dtype=np.int64)
+    grid[ci, cj] = bins
+    runs = []
+    for b in np.unique(bins):
+        regions, _ = label(grid == b, structure=np.ones((3, 3), bool))
+        region = regions[ci, cj]
+        runs += [np.flatnonzero(region == r) for r in np.unique(region[bins == b])]
+    return runs
+
+
 def extruded_objects(world_plane: np.ndarray, points: np.ndarray, albedo: np.ndarray,
                      views: list, cell_mm: float, leaf_mm: float
                      ) -> tuple[HeightField | None, list[FaceGrid]]:
@@ -311,11 +327,10 @@ def extruded_objects(world_plane: np.ndarray, points: np.ndarray, albedo: np.nda
             hidden &= ~(np.isfinite(there) & (own <= there + 3.0 + 0.03 * there))
     rho = float(np.median(albedo[above]))
     faces = []
-    bins = np.argmax(normal @ _NORMAL_BINS.T, axis=1)
-    tangent = np.cross(n, normal)
-    for b in np.unique(bins):
-        sel = np.flatnonzero(bins == b)
-        sel = sel[np.argsort((base[sel] - origin) @ tangent[sel[0]])]
+    for sel in _wall_runs(ci, cj, np.argmax(normal @ _NORMAL_BINS.T, axis=1), heights.shape):
+        # a run's columns in order along it: grid neighbours are neighbours on the wall, so
+        # the hierarchy merges them into patches (as it does an image's pixels)
+        sel = sel[np.argsort((base[sel] - origin) @ np.cross(n, normal[sel[0]]))]
         faces.append(FaceGrid(centre[sel], np.broadcast_to(normal[sel][:, None, :],
                                                              centre[sel].shape).copy(),
                               area[sel], np.full(valid[sel].shape, rho),

@@ -43,6 +43,9 @@ SURFACE_OFFSET_MM = 0.5
 MAX_SPREAD = 0.3
 #: bounce receivers stay coarse where they get less than this share of the brightest one
 REFINE_FRACTION = 0.02
+#: coarse bounce patches are refined only within this many opening distances
+#: (``open_ratio`` × radius) of the receiving pixels' surface
+FOCUS_REACH = 2.0
 #: neighbouring anchors whose irradiance magnitudes differ more than this factor are not
 #: interpolated between
 INTERPOLATION_SPREAD = 1.15
@@ -347,8 +350,16 @@ def first_bounce_emission(world, mod_freq_hz: float, light_power: float) -> np.n
 
 
 def bounce_emissions(world, *, mod_freq_hz: float, light_power: float, bounces: int,
-                     open_ratio: float = 3.0, bounce_patch_mm: float = 8.0) -> list[np.ndarray]:
-    """Leaf emission of each bounce, W_1 .. W_B (each (n_leaves,) complex128, amplitude·mm²)."""
+                     open_ratio: float = 3.0, bounce_patch_mm: float = 8.0,
+                     focus_mm: np.ndarray | None = None) -> list[np.ndarray]:
+    """Leaf emission of each bounce, W_1 .. W_B (each (n_leaves,) complex128, amplitude·mm²).
+
+    ``focus_mm``: (M, 3) world points (mm) where the light is wanted in the end (the pixels'
+    surface), or None (everywhere). Coarse patches farther from all of them than
+    :data:`FOCUS_REACH` × ``open_ratio`` × their radius are not refined: every gather there
+    takes them (or an ancestor) whole, so only their sum counts, which the coarse pass gives
+    to second order.
+    """
     tree = world.tree
     k_path = 2.0 * math.pi * mod_freq_hz / SPEED_OF_LIGHT_MM_S
     vis = _vis_args(world.scene, world.views, world.height_field)
@@ -362,21 +373,33 @@ def bounce_emissions(world, *, mod_freq_hz: float, light_power: float, bounces: 
     coarse, _ = _bounce_cut(tree.radius, tree.spread, tree.child, tree.n_leaves,
                             4.04 * bounce_patch_mm / math.sqrt(2.0), MAX_SPREAD)
     leaf_factor = tree.albedo[:tree.n_leaves] / math.pi * tree.area[:tree.n_leaves]
+    near = None
+    if focus_mm is not None and len(focus_mm):
+        from scipy.spatial import cKDTree
+
+        patches = np.unique(coarse)
+        dist, _ = cKDTree(np.asarray(focus_mm, np.float64)).query(tree.centre[patches])
+        near = np.zeros(tree.size, dtype=bool)
+        near[patches] = dist <= FOCUS_REACH * open_ratio * tree.radius[patches] + bounce_patch_mm
     for _ in range(bounces - 1):
-        e = _adaptive_irradiance(tree, out[-1], fine, coarse, k_path, open_ratio, vis)
+        e = _adaptive_irradiance(tree, out[-1], fine, coarse, k_path, open_ratio, vis, near)
         out.append(leaf_factor * e)
     return out
 
 
 def _adaptive_irradiance(tree, w: np.ndarray, fine: np.ndarray, coarse: np.ndarray,
-                         k_path: float, open_ratio: float, vis: tuple) -> np.ndarray:
+                         k_path: float, open_ratio: float, vis: tuple,
+                         near: np.ndarray | None = None) -> np.ndarray:
     """(n_leaves,) complex128 irradiance phasor per leaf from emission ``w``: gathered at the
     coarse patches, then again at the fine ones inside every coarse patch that receives more
-    than ``REFINE_FRACTION`` of the brightest one's irradiance."""
+    than ``REFINE_FRACTION`` of the brightest one's irradiance (and, with ``near`` (nodes,)
+    bool, is near the focus)."""
     rx_c, slot_c = np.unique(coarse, return_inverse=True)
     e_c = _gather_tree(tree.centre[rx_c], tree.normal[rx_c], tree, w, k_path, open_ratio, vis)
     mag = np.abs(e_c)
     refine_patch = mag > REFINE_FRACTION * (mag.max() if mag.size else 0.0)
+    if near is not None:
+        refine_patch &= near[rx_c]
     e = e_c[slot_c]
     leaves = np.flatnonzero(refine_patch[slot_c])
     if leaves.size:
@@ -472,13 +495,14 @@ def indirect_phasor(surface: SurfaceImage, world, *, mod_freq_hz: float, light_p
     valid = surfaced if receivers is None else surfaced & np.asarray(receivers, dtype=bool)
     if not valid.any() or bounces < 1:
         return out
-    emissions = bounce_emissions(world, mod_freq_hz=mod_freq_hz, light_power=light_power,
-                                 bounces=bounces, open_ratio=open_ratio,
-                                 bounce_patch_mm=bounce_patch_mm)
-    total = np.sum(emissions, axis=0)
     pose = world.camera_to_world
     points = ray_directions(surface.intrinsics) * surface.range_mm[..., None]
     rx_pos = np.where(surfaced[..., None], points @ pose[:3, :3].T + pose[:3, 3], np.nan)
+    # refined near every pixel with a surface (not only the receivers), for the same reason
+    emissions = bounce_emissions(world, mod_freq_hz=mod_freq_hz, light_power=light_power,
+                                 bounces=bounces, open_ratio=open_ratio,
+                                 bounce_patch_mm=bounce_patch_mm, focus_mm=rx_pos[surfaced])
+    total = np.sum(emissions, axis=0)
     rx_nrm = np.where(surfaced[..., None], surface.normal @ pose[:3, :3].T, np.nan)
     if world.support_plane is not None:
         rx_pos[surfaced], rx_nrm[surfaced] = _snap_to_plane(rx_pos[surfaced],
