@@ -89,6 +89,8 @@ def test_benchmark_runs_blind_and_scores(tmp_path):
     doc = run_benchmark(2, seed=5, out_dir=tmp_path, n_frames=4)
     assert (tmp_path / "labels.json").exists() and (tmp_path / "benchmark.txt").exists()
     assert len(list((tmp_path / "cases").glob("*.npz"))) == 2
+    # each case's oracle is stored beside its answer: --merge scores an interrupted run
+    assert len(list((tmp_path / "results").glob("*.oracle.json"))) == 2
     # the case files hold frames only: nothing names the concealed effect
     with np.load(tmp_path / "cases" / "case_000.npz") as npz:
         assert set(npz.files) <= {"range_mm", "amplitude", "reference_mm", "fx", "fy", "cx",

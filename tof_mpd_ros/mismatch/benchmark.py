@@ -268,16 +268,25 @@ def reselect(result: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _oracle_of(run_dir: Path, label: dict[str, Any]) -> dict[str, float]:
+    """The case's oracle metrics: stored beside its answer by the run, else computed now."""
+    stored = run_dir / "results" / f"case_{label['case']:03d}.oracle.json"
+    if stored.exists():
+        return json.loads(stored.read_text())
+    return oracle_metrics(run_dir / label["file"], label)
+
+
 def merge_runs(run_dirs: list[str | Path], out_dir: str | Path) -> dict[str, Any]:
-    """Score several finished benchmark directories as one (e.g. runs made in parallel); each
-    stored answer goes through :func:`reselect`."""
+    """Score several benchmark directories as one (e.g. runs made in parallel, finished or
+    not: every case with an answer counts); each stored answer goes through
+    :func:`reselect`."""
     rows = []
     for d in map(Path, run_dirs):
         for label in json.loads((d / "labels.json").read_text()):
             res = d / "results" / f"case_{label['case']:03d}.json"
             if res.exists():
                 row = _score_case(label, reselect(json.loads(res.read_text())),
-                                  oracle_metrics(d / label["file"], label))
+                                  _oracle_of(d, label))
                 row["case"] = f"{d.name}/{label['case']}"
                 rows.append(row)
     if not rows:
@@ -322,13 +331,18 @@ def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int
         (out / "results" / f"case_{i:03d}.json").write_text(json.dumps(result, indent=2))
         t_gen += t1 - t0
         times.append(time.time() - t1)
+        # the oracle (it reads the label) only once the tool's answer is on disk; stored, so
+        # an interrupted run can be scored by --merge without recomputing it
+        oracle = oracle_metrics(out / labels[-1]["file"], labels[-1])
+        (out / "results" / f"case_{i:03d}.oracle.json").write_text(
+            json.dumps(_clean(oracle), indent=2))
         if progress is not None:
             progress(f"case {i}")
     # scoring: the only place that reads the labels
     rows = []
     for label in json.loads((out / "labels.json").read_text()):
         result = json.loads((out / "results" / f"case_{label['case']:03d}.json").read_text())
-        rows.append(_score_case(label, result, oracle_metrics(out / label["file"], label)))
+        rows.append(_score_case(label, result, _oracle_of(out, label)))
     summary = summarise(rows)
     doc = _clean({"summary": summary, "cases": rows, "seed": seed, "n_frames": n_frames,
                   "base": base,
