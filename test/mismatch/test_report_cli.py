@@ -43,6 +43,13 @@ def test_mismatch_cli_errors_are_one_line(tmp_path, capsys):
     assert "no such file" in capsys.readouterr().err
 
 
+def test_monitoring_needs_the_config_of_an_earlier_run(drift_npz, tmp_path, capsys):
+    assert main(["mismatch", str(drift_npz), "--workflow", "monitor", "-o",
+                 str(tmp_path / "o")]) == 2
+    assert "--workflow monitor needs --sim-config" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
 def test_case_plan_has_controls_singles_and_pairs():
     plan = case_plan(20, seed=3)
     assert len(plan) == 20

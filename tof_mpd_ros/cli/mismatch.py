@@ -29,6 +29,10 @@ def register(subparsers: Any) -> None:
                                 "Azure Kinect sample folder or the ADI ToF folder (plane-fit "
                                 "reference)")
     p.add_argument("--sim-config", help="simulator config JSON to diagnose (default nominal)")
+    p.add_argument("--workflow", choices=("one-shot", "monitor"),
+                   help="one-shot: fit the camera's profile first, then name the physics "
+                        "on top of it (default without --sim-config); monitor: name what "
+                        "changed since the run that wrote --sim-config (default with it)")
     p.add_argument("--mode", type=int, default=3,
                    help="camera mode of an ADI ToF folder (3, long range; 2, short range)")
     p.add_argument("-o", "--out", required=True, help="output directory (created)")
@@ -87,6 +91,11 @@ def _mismatch(args: argparse.Namespace) -> int:
     adi = is_adi_dir(args.real)
     frames = [adi_frame(args.real, args.mode)] if adi else load_frames(args.real)
     config = _load_config(args.sim_config)
+    monitor = (config is not None) if args.workflow is None else args.workflow == "monitor"
+    if monitor and config is None:
+        raise MismatchError("--workflow monitor needs --sim-config (an earlier run's "
+                            "fitted_config.json)")
+    # the stand-ins of the shared real cameras are where a one-shot run starts from
     if config is None and is_azure_kinect_dir(args.real):
         config = azure_kinect_config()
     if config is None and adi:
@@ -95,7 +104,7 @@ def _mismatch(args: argparse.Namespace) -> int:
     with tqdm(total=total, desc="fitting candidates", file=sys.stderr) as bar:
         analysis = analyse(frames, config, max_effects=args.max_effects,
                            reference_noise_mm=args.reference_noise_mm,
-                           progress=lambda name: bar.update(1))
+                           progress=lambda name: bar.update(1), monitor=monitor)
     paths = write_report(analysis, args.out)
     summary = {"selected": analysis.selected, "parameters": analysis.parameters,
                "rmse_before_mm": analysis.metrics["rmse_before_mm"],

@@ -181,7 +181,8 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
             max_effects: int = 2, candidates: Sequence[str] = CANDIDATES,
             reference_noise_mm: float = REFERENCE_NOISE_MM, min_score: float = MIN_SCORE,
             min_t: float = MIN_T, edge_exclusion_px: float = 0.0,
-            progress: Callable[[str], None] | None = None) -> Analysis:
+            progress: Callable[[str], None] | None = None,
+            monitor: bool | None = None) -> Analysis:
     """Locate, name, model and show the sim-vs-real mismatch of ``frames``.
 
     Two workflows. *One-shot* (``config`` None): the recording's modulation frequency and the
@@ -204,12 +205,17 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
         edge_exclusion_px: pixels closer than this to a reference depth edge are not used
             (1 = the edge pixels themselves; 0 = use every pixel).
         progress: called with a short message after each fitted candidate.
+        monitor: the workflow: None = monitor when ``config`` is given, one-shot when not;
+            False = one-shot starting from ``config`` (a stand-in for a known kind of camera:
+            what it states about the camera is kept, its units and profile are not trusted).
 
     Raises:
         MismatchError: no frames, missing references, or nothing to compare.
     """
     check_frames(frames)
-    monitor = config is not None
+    monitor = config is not None if monitor is None else bool(monitor)
+    if monitor and config is None:
+        raise MismatchError("the monitor workflow needs the config of an earlier run")
     given = ToFConfig.nominal() if config is None else config
     base, facts = adopt_recording(frames, given, keep_units=monitor)
     motions = camera_motion(frames)

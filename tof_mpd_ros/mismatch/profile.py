@@ -71,13 +71,14 @@ def with_amplitude_units(config: ToFConfig, scale: float) -> ToFConfig:
 
 def with_scene_distance(config: ToFConfig, distance_mm: float) -> ToFConfig:
     """``config`` with the interreflection's patches (``multipath`` ``leaf_mm``,
-    ``bounce_patch_mm``) scaled by ``distance_mm`` / :data:`CELL_DISTANCE_MM`: a leaf stays
-    about one pixel's footprint, as in the cell (at 4 mm the support plane of a room, extended
-    across the light's cone, holds millions of leaves). Ranges are unchanged; the indirect
-    light is sampled as coarsely, relative to the scene, as in the cell."""
+    ``bounce_patch_mm``) the nominal cell's × ``distance_mm`` / :data:`CELL_DISTANCE_MM`: a
+    leaf stays about one pixel's footprint, as in the cell (at 4 mm the support plane of a
+    room, extended across the light's cone, holds millions of leaves). Ranges are unchanged;
+    the indirect light is sampled as coarsely, relative to the scene, as in the cell.
+    Idempotent: a config already scaled to the distance is returned as it is."""
     scale = float(distance_mm) / CELL_DISTANCE_MM
-    p = config.params("multipath")
-    return config.with_effect("multipath", **{k: float(p[k]) * scale
+    nominal = ToFConfig.nominal().params("multipath")
+    return config.with_effect("multipath", **{k: float(nominal[k]) * scale
                                              for k in ("leaf_mm", "bounce_patch_mm")})
 
 
