@@ -118,7 +118,7 @@ def test_a_foreign_camera_gets_its_profile_measured(foreign):
 
 @pytest.mark.xfail(strict=True, reason="issue 13, open: on this quiet 50 MHz camera the "
                    "predictor's one-sample footprint (a sampled Gaussian of the footprint's "
-                   "second moment: 6 % to each neighbour) mixes less at depth edges than a "
+                   "second moment: 5 % to each neighbour) mixes less at depth edges than a "
                    "pixel's expected value given its samples (17 %), so mixed_pixels is named "
                    "(psf 0.49 px vs 0.3); the expected-value kernel passes this test but "
                    "moves the golden bright cube's reference-only field 1.99 -> 2.04 mm "
