@@ -22,9 +22,9 @@ def register(subparsers: Any) -> None:
                     "fits every candidate effect on alternate frames and scores it on the "
                     "others, and writes into OUT: report.json (selected, ranking, parameters, "
                     "rmse_before_mm, rmse_after_mm, localisation), fitted_config.json, PNG "
-                    "plots and index.html. Takes about 0.5-2 min for 6-8 frames of 96x72 on two "
-                    "busy cores (~2 min for the 160x144 Azure Kinect frame), growing with the "
-                    "pixel count (interreflection ~ pixels^2).")
+                    "plots and index.html. Takes about 2-5 min for 6 frames of 96x72 (one-shot, "
+                    "two cores; the light transport of each frame's world about half of it), "
+                    "a few minutes for the 160x144 Azure Kinect frame.")
     p.add_argument("real", help="recording directory, .mcap or .npz with references, or the "
                                 "Azure Kinect sample folder or the ADI ToF folder (plane-fit "
                                 "reference)")
@@ -49,8 +49,9 @@ def register(subparsers: Any) -> None:
                     "or two effects (15%%); runs the tool blind on each .npz; writes OUT/"
                     "cases/*.npz, OUT/labels.json (hidden truth, read only for scoring), "
                     "OUT/results/*.json, OUT/benchmark.json and OUT/benchmark.txt (top-1, false "
-                    "alarms, parameter error, RMSE reduction). Takes about 1-2.5 min per case on "
-                    "two busy cores (generation ~15 s, analysis the rest).")
+                    "alarms, parameter error, RMSE reduction). Takes about 4-6 min per case on "
+                    "two busy cores (generation ~15 s, the tool's analysis, then the oracle's: "
+                    "the same frames predicted with the true effects).")
     b.add_argument("--cases", type=int, default=8, help="number of cases (8)")
     b.add_argument("--seed", type=int, default=0, help="seed of the whole benchmark (0)")
     b.add_argument("--frames", type=int, default=6, help="frames per case (6)")
