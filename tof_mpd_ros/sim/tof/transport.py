@@ -381,8 +381,10 @@ def bounce_emissions(world, *, mod_freq_hz: float, light_power: float, bounces: 
         dist, _ = cKDTree(np.asarray(focus_mm, np.float64)).query(tree.centre[patches])
         near = np.zeros(tree.size, dtype=bool)
         near[patches] = dist <= FOCUS_REACH * open_ratio * tree.radius[patches] + bounce_patch_mm
-    for _ in range(bounces - 1):
-        e = _adaptive_irradiance(tree, out[-1], fine, coarse, k_path, open_ratio, vis, near)
+    for b in range(bounces - 1):
+        # light that has bounced twice is smooth: the coarse patches resolve it
+        refine = near if b == 0 else np.zeros(tree.size, dtype=bool)
+        e = _adaptive_irradiance(tree, out[-1], fine, coarse, k_path, open_ratio, vis, refine)
         out.append(leaf_factor * e)
     return out
 
