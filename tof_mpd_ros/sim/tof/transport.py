@@ -358,7 +358,7 @@ def bounce_emissions(world, *, mod_freq_hz: float, light_power: float, bounces: 
     surface), or None (everywhere). Coarse patches farther from all of them than
     :data:`FOCUS_REACH` × ``open_ratio`` × their radius are not refined: every gather there
     takes them (or an ancestor) whole, so only their sum counts, which the coarse pass gives
-    to second order.
+    to second order. The third and later bounces are gathered at the coarse patches only.
     """
     tree = world.tree
     k_path = 2.0 * math.pi * mod_freq_hz / SPEED_OF_LIGHT_MM_S
@@ -373,35 +373,37 @@ def bounce_emissions(world, *, mod_freq_hz: float, light_power: float, bounces: 
     coarse, _ = _bounce_cut(tree.radius, tree.spread, tree.child, tree.n_leaves,
                             4.04 * bounce_patch_mm / math.sqrt(2.0), MAX_SPREAD)
     leaf_factor = tree.albedo[:tree.n_leaves] / math.pi * tree.area[:tree.n_leaves]
-    near = None
+    refinable = None
     if focus_mm is not None and len(focus_mm):
         from scipy.spatial import cKDTree
 
         patches = np.unique(coarse)
         dist, _ = cKDTree(np.asarray(focus_mm, np.float64)).query(tree.centre[patches])
-        near = np.zeros(tree.size, dtype=bool)
-        near[patches] = dist <= FOCUS_REACH * open_ratio * tree.radius[patches] + bounce_patch_mm
+        refinable = np.zeros(tree.size, dtype=bool)
+        refinable[patches] = (dist <= FOCUS_REACH * open_ratio * tree.radius[patches]
+                              + bounce_patch_mm)
+    nowhere = np.zeros(tree.size, dtype=bool)
     for b in range(bounces - 1):
         # light that has bounced twice is smooth: the coarse patches resolve it
-        refine = near if b == 0 else np.zeros(tree.size, dtype=bool)
-        e = _adaptive_irradiance(tree, out[-1], fine, coarse, k_path, open_ratio, vis, refine)
+        e = _adaptive_irradiance(tree, out[-1], fine, coarse, k_path, open_ratio, vis,
+                                 refinable if b == 0 else nowhere)
         out.append(leaf_factor * e)
     return out
 
 
 def _adaptive_irradiance(tree, w: np.ndarray, fine: np.ndarray, coarse: np.ndarray,
                          k_path: float, open_ratio: float, vis: tuple,
-                         near: np.ndarray | None = None) -> np.ndarray:
+                         refinable: np.ndarray | None = None) -> np.ndarray:
     """(n_leaves,) complex128 irradiance phasor per leaf from emission ``w``: gathered at the
     coarse patches, then again at the fine ones inside every coarse patch that receives more
-    than ``REFINE_FRACTION`` of the brightest one's irradiance (and, with ``near`` (nodes,)
-    bool, is near the focus)."""
+    than ``REFINE_FRACTION`` of the brightest one's irradiance (and, with ``refinable``
+    (nodes,) bool, is one of those)."""
     rx_c, slot_c = np.unique(coarse, return_inverse=True)
     e_c = _gather_tree(tree.centre[rx_c], tree.normal[rx_c], tree, w, k_path, open_ratio, vis)
     mag = np.abs(e_c)
     refine_patch = mag > REFINE_FRACTION * (mag.max() if mag.size else 0.0)
-    if near is not None:
-        refine_patch &= near[rx_c]
+    if refinable is not None:
+        refine_patch &= refinable[rx_c]
     e = e_c[slot_c]
     leaves = np.flatnonzero(refine_patch[slot_c])
     if leaves.size:
