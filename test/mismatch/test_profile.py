@@ -116,13 +116,10 @@ def test_a_foreign_camera_gets_its_profile_measured(foreign):
     assert foreign.unexplained == []
 
 
-@pytest.mark.xfail(strict=True, reason="issue 13, open: on this quiet 50 MHz camera the "
-                   "predictor's one-sample footprint (a sampled Gaussian of the footprint's "
-                   "second moment: 5 % to each neighbour) mixes less at depth edges than a "
-                   "pixel's expected value given its samples (17 %), so mixed_pixels is named "
-                   "(psf 0.49 px vs 0.3); the expected-value kernel passes this test but "
-                   "moves the golden bright cube's reference-only field 1.99 -> 2.04 mm "
-                   "(docs/mismatch.md section 8)")
+@pytest.mark.xfail(strict=True, reason="issue 13, open: on this quiet 50 MHz camera "
+                   "mixed_pixels is named (psf 0.49 px vs 0.3): the one-sample predictor mixes "
+                   "less at depth edges than the supersampled render (docs/mismatch.md "
+                   "section 8)")
 def test_nothing_is_named_on_a_foreign_camera_with_nothing_missing(foreign):
     assert foreign.selected == []
 
