@@ -89,13 +89,14 @@ def _mismatch(args: argparse.Namespace) -> int:
         is_azure_kinect_dir,
     )
 
-    adi = is_adi_dir(args.real)
-    frames = [adi_frame(args.real, args.mode)] if adi else load_frames(args.real)
+    # the arguments first: a wrong combination costs no reading of the recording
     config = _load_config(args.sim_config)
     monitor = (config is not None) if args.workflow is None else args.workflow == "monitor"
     if monitor and config is None:
         raise MismatchError("--workflow monitor needs --sim-config (an earlier run's "
                             "fitted_config.json)")
+    adi = is_adi_dir(args.real)
+    frames = [adi_frame(args.real, args.mode)] if adi else load_frames(args.real)
     # the stand-ins of the shared real cameras are where a one-shot run starts from
     if config is None and is_azure_kinect_dir(args.real):
         config = azure_kinect_config()
