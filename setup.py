@@ -67,6 +67,7 @@ setup(
         "test": [
             "pytest>=8",
             "pytest-timeout>=2.3",
+            "hypothesis>=6",
             "rosbags>=0.10",
             "colcon-common-extensions>=0.3",
             "ruff>=0.5",
