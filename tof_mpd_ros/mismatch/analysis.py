@@ -9,7 +9,7 @@ remaining residual (up to ``max_effects``). ``none`` is the answer when no candi
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -33,7 +33,15 @@ from .fit import (
 from .likelihood import REFERENCE_NOISE_MM, tile_t_statistic, total_sigma
 from .locate import describe_stratum, locate, strata
 from .predict import FramePredictor
-from .profile import PROFILE_EFFECTS, adopt_recording, describe_profile
+from .profile import (
+    ALBEDO_DOUBT,
+    ALBEDO_EFFECT,
+    ALBEDO_EXPONENT,
+    PROFILE_EFFECTS,
+    adopt_recording,
+    albedo_from_interreflection,
+    describe_profile,
+)
 
 _log = logging.getLogger(__name__)
 
@@ -240,17 +248,30 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
     profile: list[str] = []
     if not monitor:
         # the camera first: what every camera has its own values of, then the physics on top
-        profile = search.greedy([c for c in candidates if c in PROFILE_EFFECTS],
-                                len(PROFILE_EFFECTS))
-        search.refit = profile
+        own = [c for c in candidates if c in PROFILE_EFFECTS]
+        profile = search.greedy(own, len(own))
         # the camera's level stays a free profile parameter while physics is named on top
         search.problem = replace(search.problem, free_level=True, _base_cost={}, _level=None)
+        search.refit = profile
+        if ALBEDO_EFFECT in candidates:
+            # the units were assumed, so the scene's albedo is known only within ALBEDO_DOUBT:
+            # the interreflection's strength within what that allows is the scene's albedo,
+            # part of the profile; left in the residual, other effects would absorb it. Fitted
+            # with the level free: interreflection lifts every range a little
+            search.profile_boxes = {ALBEDO_EFFECT: albedo_box()}
+            profile += search.greedy([ALBEDO_EFFECT], 1, boxes=search.profile_boxes)
+            search.refit = profile
         scene = [c for c in candidates if c not in PROFILE_EFFECTS]
     else:
         scene = list(candidates)
     selected = search.greedy(scene, max_effects) if max_effects > 0 else []
+    # interreflection beyond the albedo's doubt is named physics, no longer the profile's
+    profile = [e for e in profile if e not in selected]
     # what the physics on top took back from the camera's profile leaves it where it was
     profile = search.confirm(profile, base)
+    if ALBEDO_EFFECT in profile:
+        facts = {**facts, **albedo_from_interreflection(
+            facts, float(search.problem.base.params(ALBEDO_EFFECT)["gain"]))}
     analysis = _finish(search.problem, given, selected, search.rounds, search.evidence,
                        location, predictors, descriptors)
     analysis.workflow = "monitor" if monitor else "one-shot"
@@ -282,9 +303,14 @@ class _Search:
     #: the amplitude units were chosen by the grey world (one-shot): albedo, hence the
     #: interreflection's strength, is known only within ``UNITS_DOUBT``
     units_assumed: bool = False
+    #: unit-box limits of profile effects searched in part of their range (the albedo's)
+    profile_boxes: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
 
-    def greedy(self, candidates: Sequence[str], limit: int) -> list[str]:
-        """Take up to ``limit`` of ``candidates``, one per round, while one is significant."""
+    def greedy(self, candidates: Sequence[str], limit: int,
+               boxes: dict[str, list[tuple[float, float]]] | None = None) -> list[str]:
+        """Take up to ``limit`` of ``candidates``, one per round, while one is significant
+        (``boxes``: candidates searched in part of their range)."""
+        boxes = boxes or {}
         taken: list[str] = []
         for _ in range(limit):
             k = len(self.rounds)
@@ -292,7 +318,9 @@ class _Search:
             for name in candidates:
                 if name in taken:
                     continue
-                results.append(self._with_refit(fit_effect(self.problem, name)))
+                box = boxes.get(name)
+                results.append(self._with_refit(fit_effect(self.problem, name, box=box),
+                                                box))
                 if self.progress:
                     self.progress(name)
             results = rank(results, self.problem)
@@ -303,7 +331,7 @@ class _Search:
             # once a fit is taken, the residual holds that fit's imperfections too
             threshold = (self.min_score if not self.taken
                          else max(self.min_score, MIN_SCORE_LATER))
-            best = self._first_explained(results, threshold, k)
+            best = self._first_explained(results, threshold, k, boxed=set(boxes))
             if best is None:
                 break
             taken.append(best.effect)
@@ -314,21 +342,24 @@ class _Search:
         return taken
 
     def _first_explained(self, results: list[FitResult], threshold: float,
-                         k: int) -> FitResult | None:
+                         k: int, boxed: Collection[str] = ()) -> FitResult | None:
         """The best significant candidate whose fit the model explains: one fitted at the edge
         of a parameter's range is evidence that the model does not explain the residual, so it
-        is reported (``unexplained``) and never taken on that basis."""
+        is reported (``unexplained``) and never taken on that basis. Nor is a multipath gain
+        the assumed units explain named as physics (the profile's albedo, ``boxed``, is)."""
         for r in results:
             if not _significant(r, threshold, self.min_t):
                 return None
-            if self.units_assumed and within_units_doubt(r):
+            if self.units_assumed and r.effect not in boxed and within_units_doubt(r):
                 self.unexplained.append({
                     "round": k + 1, "effect": r.effect, "score": round(r.score, 3),
                     "parameters_at_edge": {},
                     "why": f"gain {r.parameters['gain']:.2f} is within what the unknown "
                            "amplitude units allow (the grey world's albedo may be off by "
-                           f"{UNITS_DOUBT[0]:.1f}-{UNITS_DOUBT[1]:.1f}x, and interreflection "
-                           "scales with albedo): not named as missing physics",
+                           f"{ALBEDO_DOUBT[0]:.1f}-{ALBEDO_DOUBT[1]:.1f}x, and interreflection "
+                           f"scales as albedo^{ALBEDO_EXPONENT:g}: gain "
+                           f"{UNITS_DOUBT[0]:.2f}-{UNITS_DOUBT[1]:.2f}): not named as missing "
+                           "physics",
                     "where": self.location.get("flagged", [])[:3]})
                 continue
             edge = parameters_at_edge(r)
@@ -353,8 +384,9 @@ class _Search:
             current = self.problem.base
             without = replace(current, effects={**current.effects,
                                                 name: given.effects[name]})
-            # judged at the given level: a free level would hide a changed offset
-            trial = replace(_rebased(self.problem, without), free_level=False)
+            # judged at the given level: a free level would hide a changed offset; but not the
+            # albedo's interreflection, which lifts every range a little
+            trial = replace(_rebased(self.problem, without), free_level=name == ALBEDO_EFFECT)
             back = score_fit(trial, FitResult(name, current, {}, len(free_params(name))))
             if _significant(back, self.min_score, self.min_t):
                 kept.append(name)
@@ -373,13 +405,14 @@ class _Search:
             u = p.unit(result.parameters.get(p.name, p.low))
             box.append((0.0, 1.0) if p.name not in edge else
                        (0.0, 1.0 - INNER_MARGIN) if u > 0.5 else (INNER_MARGIN, 1.0))
-        q = self._with_refit(fit_effect(self.problem, result.effect, box=box))
+        q = self._with_refit(fit_effect(self.problem, result.effect, box=box), box)
         if q.note or parameters_at_edge(q) or \
                 q.train_gain < EDGE_SLACK * result.train_gain:
             return None
         return q
 
-    def _with_refit(self, result: FitResult) -> FitResult:
+    def _with_refit(self, result: FitResult,
+                    box: Sequence[tuple[float, float]] | None = None) -> FitResult:
         """``result`` with the camera's profile refitted on top of it, scored against the
         current model: what the profile absorbed of this physics before it was tried (a mean
         offset of a warm-up drift, a range-dependent share of interreflection) goes back to it.
@@ -388,14 +421,17 @@ class _Search:
             return result
         config = result.config
         for name in self.refit:
-            q = fit_effect(_rebased(self.problem, config), name)
+            if name == result.effect:
+                continue
+            q = fit_effect(_rebased(self.problem, config), name,
+                           box=self.profile_boxes.get(name))
             if not q.note and q.train_gain > 0:
                 config = q.config
         if config is result.config:
             return result
         # and the candidate once more on the refitted profile (one step of coordinate descent:
         # a candidate first fitted against a profile that held part of it can sit far off)
-        q = fit_effect(_rebased(self.problem, config), result.effect)
+        q = fit_effect(_rebased(self.problem, config), result.effect, box=box)
         if not q.note and q.train_gain > 0:
             config = q.config
         refitted = FitResult(result.effect, config, plain_params(config, result.effect),
@@ -417,17 +453,23 @@ def _rebased(p: Problem, config: ToFConfig) -> Problem:
                    free_level=p.free_level)
 
 
-#: how far a scene's median albedo may sit from the grey world's 0.5 (0.3-0.8): the factor by
-#: which interreflection is uncertain when the amplitude units were assumed
-UNITS_DOUBT = (0.6, 1.6)
+#: the multipath gains the unknown amplitude units explain alone when they were assumed: the
+#: camera's profile takes such a gain (the scene's albedo), physics is named only beyond it
+UNITS_DOUBT = (ALBEDO_DOUBT[0] ** ALBEDO_EXPONENT, ALBEDO_DOUBT[1] ** ALBEDO_EXPONENT)
 
 
 def within_units_doubt(result: FitResult) -> bool:
     """A multipath gain the unknown amplitude units could explain alone (albedo and units are
     degenerate, and the indirect share of the return scales with the senders' albedo)."""
-    if result.effect != "multipath" or "gain" not in result.parameters:
+    if result.effect != ALBEDO_EFFECT or "gain" not in result.parameters:
         return False
     return UNITS_DOUBT[0] <= result.parameters["gain"] <= UNITS_DOUBT[1]
+
+
+def albedo_box() -> list[tuple[float, float]]:
+    """Unit-box limits of :data:`ALBEDO_EFFECT`'s gain within :data:`UNITS_DOUBT`."""
+    (gain,) = free_params(ALBEDO_EFFECT)
+    return [(gain.unit(UNITS_DOUBT[0]), gain.unit(UNITS_DOUBT[1]))]
 
 
 #: a fitted parameter within this fraction of its range from an edge sits at the edge

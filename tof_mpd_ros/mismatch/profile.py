@@ -39,6 +39,16 @@ SCENE_EFFECTS: tuple[str, ...] = ("multipath", "mixed_pixels", "lens_scatter", "
                                   "hand_eye")
 #: the assumed median albedo of a scene when the amplitude units are unknown
 GREY_WORLD_ALBEDO = 0.5
+#: how far a scene's median albedo may sit from the grey world's (0.3-0.8)
+ALBEDO_DOUBT = (0.6, 1.6)
+#: the effect whose strength the scene's albedo sets: with the units assumed, the profile fits
+#: its gain within what ``ALBEDO_DOUBT`` allows (the analysis), i.e. the scene's albedo
+ALBEDO_EFFECT = "multipath"
+#: the interreflection of the reference's world scales as albedo ** ALBEDO_EXPONENT under a
+#: uniform albedo scale: one bounce (∝ albedo) dominates, two (∝ albedo²) add a little
+#: (measured on tabletop scenes: 0.6× the albedo gives 0.57-0.59× the indirect phasor, an
+#: exponent of 1.02-1.09; ``test_interreflection_scales_with_the_albedo``)
+ALBEDO_EXPONENT = 1.1
 #: inferred albedo is implausible for a config's amplitude units when its median leaves this
 #: range or more than ``BRIGHT_SHARE`` of the pixels come out brighter than a white diffuser
 PLAUSIBLE_MEDIAN_ALBEDO = (0.15, 0.95)
@@ -142,6 +152,16 @@ def adopt_recording(frames: Sequence[ToFFrame], config: ToFConfig, *,
     return (with_amplitude_units(config, scale) if scale != 1.0 else config), facts
 
 
+def albedo_from_interreflection(facts: dict[str, Any], gain: float) -> dict[str, float]:
+    """What a multipath ``gain`` fitted within the albedo's doubt says: the scene's albedo is
+    ``gain ** (1 / ALBEDO_EXPONENT)`` × the grey world's, so the amplitude units are the grey
+    world's divided by that (facts ``albedo_scale``, ``amplitude_scale_from_interreflection``)."""
+    scale = float(gain) ** (1.0 / ALBEDO_EXPONENT)
+    return {"albedo_scale": scale,
+            "amplitude_scale_from_interreflection": float(facts.get("amplitude_scale", 1.0))
+            / scale}
+
+
 def describe_profile(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any],
                      effects: Sequence[str]) -> list[str]:
     """The camera's profile in words, relative to the nominal cell ("noise 3.6× lower than
@@ -171,9 +191,15 @@ def describe_profile(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any
         elif name == "amplitude_bias":
             words.append(f"amplitude bias {float(p['bias_mm']):+.1f} mm (exponent "
                          f"{float(p['exponent']):.2g})")
+        elif name == ALBEDO_EFFECT and "albedo_scale" in facts:
+            words.append(f"interreflection {float(p['gain']):.2g}× the grey world's: the "
+                         f"scene's albedo about {facts['albedo_scale']:.2g}× "
+                         f"{GREY_WORLD_ALBEDO}, amplitude units about "
+                         f"{facts['amplitude_scale_from_interreflection']:.3g}× the simulator's")
     return words
 
 
-__all__ = ["GREY_WORLD_ALBEDO", "PROFILE_EFFECTS", "SCENE_EFFECTS", "adopt_recording",
+__all__ = ["ALBEDO_DOUBT", "ALBEDO_EFFECT", "ALBEDO_EXPONENT", "GREY_WORLD_ALBEDO",
+           "PROFILE_EFFECTS", "SCENE_EFFECTS", "adopt_recording", "albedo_from_interreflection",
            "describe_profile", "scene_albedo", "units_plausible", "with_amplitude_units",
            "with_scene_distance"]
