@@ -8,6 +8,7 @@ last complete chunk; see :mod:`tof_mpd_ros.recordings.scan`.
 from __future__ import annotations
 
 import logging
+import math
 from collections import Counter
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
@@ -350,9 +351,9 @@ class RecordingReader:
         except ValueError as err:
             raise RecordingError(f"{self.path}: custom_data {KEY_MOD_FREQ}={value!r} is not "
                                  "a number") from err
-        if not freq > 0:
+        if not (math.isfinite(freq) and freq > 0):
             raise RecordingError(f"{self.path}: custom_data {KEY_MOD_FREQ}={value!r} must "
-                                 "be > 0")
+                                 "be a finite number > 0")
         return freq
 
     # ------------------------------------------------------------------------ indexing
@@ -405,7 +406,7 @@ def _summary_records(path: Path) -> tuple[dict[int, Schema], dict[int, Channel]]
     try:
         with open(path, "rb") as stream:
             size = scan.check_magic(stream, path)
-            if not scan.file_is_closed(stream, size):
+            if not scan.file_is_closed(stream, size) or not scan.summary_intact(stream, size):
                 return {}, {}
             stream.seek(0)
             summary = SeekingReader(stream).get_summary()
@@ -422,6 +423,9 @@ def _index_from_summary(path: Path) -> _FileIndex | None:
         with open(path, "rb") as stream:
             size = scan.check_magic(stream, path)
             if not scan.file_is_closed(stream, size):
+                return None
+            if not scan.summary_intact(stream, size):
+                _log.warning("%s: summary section fails its CRC; scanning the file", path)
                 return None
             stream.seek(0)
             reader = SeekingReader(stream)

@@ -12,14 +12,18 @@ it was interrupted, so its last incomplete record is the expected torn write.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import logging
 import struct
-from collections.abc import Iterator
+import zlib
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import BinaryIO
 
+import lz4.frame
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.records import Channel, Chunk, Message, Metadata, Schema
@@ -32,6 +36,10 @@ _log = logging.getLogger(__name__)
 MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")
 _MAX_HEADER = 1 << 20  # a Header holds two short strings (profile, library)
+# Chunks are decompressed this many bytes at a time (see _records_section).
+_BLOCK = 1 << 20
+# Footer record: opcode, length 20, summary_start, summary_offset_start, summary_crc.
+_FOOTER = struct.Struct("<BQQQI")
 
 Record = Schema | Channel | Message | Metadata
 
@@ -67,6 +75,26 @@ def file_is_closed(stream: BinaryIO, size: int) -> bool:
         return False
     stream.seek(size - len(MAGIC))
     return stream.read(len(MAGIC)) == MAGIC
+
+
+def summary_intact(stream: BinaryIO, size: int) -> bool:
+    """True when a closed file's summary section matches the CRC its footer stores (or the
+    footer stores none). The summary is outside every chunk CRC, so a flipped byte there would
+    otherwise rename a topic or miscount messages unnoticed."""
+    footer_at = size - len(MAGIC) - _FOOTER.size
+    if footer_at < len(MAGIC):
+        return False
+    stream.seek(footer_at)
+    opcode, length, summary_start, _, crc = _FOOTER.unpack(stream.read(_FOOTER.size))
+    if opcode != Opcode.FOOTER or length != _FOOTER.size - 9:
+        return False
+    if crc == 0:
+        return True  # the writer did not compute one
+    if not len(MAGIC) <= summary_start <= footer_at:
+        return False
+    stream.seek(summary_start)
+    covered = stream.read(footer_at + _FOOTER.size - 4 - summary_start)
+    return zlib.crc32(covered) == crc
 
 
 def check_magic(stream: BinaryIO, path: Path) -> int:
@@ -152,7 +180,8 @@ def _chunk_records(body: bytes, path: Path, offset: int,
                    report: ScanReport) -> Iterator[Record]:
     try:
         chunk = Chunk.read(ReadDataStream(io.BytesIO(body)))
-        records = breakup_chunk(chunk, validate_crc=True)
+        plain = dataclasses.replace(chunk, compression="", data=_records_section(chunk))
+        records = breakup_chunk(plain, validate_crc=True)
     except Exception as err:  # zstd/lz4/crc/struct all signal a corrupt chunk
         problem = f"corrupt chunk at byte {offset} ({type(err).__name__}: {err})"
         if not report.skip_corrupt:
@@ -164,6 +193,37 @@ def _chunk_records(body: bytes, path: Path, offset: int,
     for record in records:
         if isinstance(record, Schema | Channel | Message):
             yield record
+
+
+_DECOMPRESSORS: dict[str, Callable[[bytes], BinaryIO]] = {
+    "zstd": lambda data: zstandard.ZstdDecompressor().stream_reader(data),
+    "lz4": lambda data: lz4.frame.LZ4FrameFile(io.BytesIO(data)),
+}
+
+
+def _records_section(chunk: Chunk) -> bytes:
+    """The chunk's records, decompressed block by block up to its declared size.
+
+    zstd and lz4 allocate the content size their frame header claims before decompressing, so a
+    corrupt header could claim gigabytes; reading in blocks keeps memory to the data really
+    there (and never past ``uncompressed_size``, which may lie too).
+    """
+    if chunk.compression == "":
+        return chunk.data
+    if chunk.compression not in _DECOMPRESSORS:
+        raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
+    stream = _DECOMPRESSORS[chunk.compression](chunk.data)
+    limit = chunk.uncompressed_size
+    out = bytearray()
+    while len(out) <= limit:
+        block = stream.read(min(_BLOCK, limit + 1 - len(out)))
+        if not block:
+            break
+        out += block
+    if len(out) != limit:
+        what = f"more than {limit}" if len(out) > limit else str(len(out))
+        raise ValueError(f"decompresses to {what} bytes but declares {limit}")
+    return bytes(out)
 
 
 def _top_level_record(opcode: int, body: bytes, path: Path, offset: int) -> Record | None:
