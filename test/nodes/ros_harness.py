@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -33,21 +34,28 @@ def node_env(domain_id: int) -> dict[str, str]:
 
 
 def start_node(executable: str, params: dict[str, object], domain_id: int,
-               log_path: Path) -> subprocess.Popen:
-    """``python -m tof_mpd_ros.nodes.<executable> --ros-args -p k:=v ...``."""
-    args = [sys.executable, "-m", f"tof_mpd_ros.nodes.{executable}", "--ros-args"]
+               log_path: Path, *, script: Path | None = None,
+               preexec_fn: Callable[[], None] | None = None) -> subprocess.Popen:
+    """``python -m tof_mpd_ros.nodes.<executable> --ros-args -p k:=v ...``.
+
+    With ``script``, ``python <script> --ros-args ...`` instead (a node with injected faults);
+    ``preexec_fn`` runs in the child before it starts (e.g. a resource limit).
+    """
+    program = [str(script)] if script else ["-m", f"tof_mpd_ros.nodes.{executable}"]
+    args = [sys.executable, *program, "--ros-args"]
     for key, value in params.items():
         text = str(value).lower() if isinstance(value, bool) else str(value)
         args += ["-p", f"{key}:={text}"]
     with open(log_path, "w") as log:  # the child keeps its own descriptor
         return subprocess.Popen(args, env=node_env(domain_id), stdout=log,
-                                stderr=subprocess.STDOUT)
+                                stderr=subprocess.STDOUT, preexec_fn=preexec_fn)
 
 
-def stop_node(process: subprocess.Popen, timeout: float = 60.0) -> int:
-    """SIGINT (like Ctrl-C), then kill if it does not exit."""
+def stop_node(process: subprocess.Popen, timeout: float = 60.0,
+              signum: int = signal.SIGINT) -> int:
+    """``signum`` (default SIGINT, like Ctrl-C), then kill if it does not exit."""
     if process.poll() is None:
-        process.send_signal(2)
+        process.send_signal(signum)
         try:
             process.wait(timeout)
         except subprocess.TimeoutExpired:

@@ -112,3 +112,60 @@ def test_collector_that_cannot_configure_exits_non_zero(tmp_path: Path) -> None:
                                          "plan_file": str(tmp_path / "plan.yaml")}, DOMAIN, log)
     assert collector.wait(300) == 2
     assert "6-vectors" in log.read_text()
+
+
+FAKE_DOMAIN = domain_id(10)  # topics published by the test itself, no sim_cell
+
+
+def test_undecodable_images_skip_the_view_and_the_collector_exits_non_zero(
+        tmp_path: Path) -> None:
+    """A synchronised set whose depth image has a colour encoding: the view is skipped after
+    the retry (one error line), the process ends with EXIT_PLAN_INCOMPLETE, no traceback; the
+    worker used to die on it and leave the process waiting forever."""
+    from geometry_msgs.msg import PoseStamped
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import Image
+
+    from tof_mpd_ros.camera import Intrinsics
+    from tof_mpd_ros.nodes.collector_node import EXIT_PLAN_INCOMPLETE
+    from tof_mpd_ros.nodes.ros_messages import camera_info_message, image_message
+
+    log = tmp_path / "collector.log"
+    collector = start_node("collector", {**COLLECTOR, "session_path": str(tmp_path / "s"),
+                                         "views": 1, "capture_timeout_s": 5.0}, FAKE_DOMAIN,
+                           log)
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=FAKE_DOMAIN)
+    node = rclpy.create_node("fake_camera", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        node.create_subscription(PoseStamped, "/arm/tcp_pose", lambda m: None, 10)
+        h, w = 24, 32
+        plane = np.full((h, w), 0.5, np.float32)
+        rgb = np.zeros((h, w, 3), np.uint8)
+        colour = Image(height=h, width=w, encoding="rgb8", step=3 * w, data=rgb.tobytes())
+        messages = {"/tof/depth/image_raw": colour,
+                    "/tof/amplitude/image_raw": image_message(plane, "32FC1"),
+                    "/tof/camera_info": camera_info_message(Intrinsics.from_fov(w, h, 60.0), ""),
+                    "/sl/depth/image_raw": image_message(plane, "32FC1")}
+        publishers = {topic: node.create_publisher(type(msg), topic, qos_profile_sensor_data)
+                      for topic, msg in messages.items()}
+        deadline = time.monotonic() + 300
+        while collector.poll() is None and time.monotonic() < deadline \
+                and "Traceback" not in log.read_text():
+            stamp = node.get_clock().now().to_msg()
+            for topic, msg in messages.items():
+                msg.header.stamp = stamp
+                publishers[topic].publish(msg)
+            executor.spin_once(timeout_sec=0.1)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        context.try_shutdown()
+        code = stop_node(collector, 10)
+    text = log.read_text()
+    assert "Traceback" not in text, text[-3000:]
+    assert code == EXIT_PLAN_INCOMPLETE, text[-3000:]
+    assert "cannot decode the captured messages" in text and "skipped [0]" in text

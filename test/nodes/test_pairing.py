@@ -80,6 +80,27 @@ def test_worker_survives_a_failing_item() -> None:
     assert isinstance(errors[0], ValueError)
 
 
+def test_worker_survives_an_error_handler_that_raises(capfd: pytest.CaptureFixture) -> None:
+    """The corrector's handler once raised (a logging error) and the thread died for good."""
+    def process(item: int) -> None:
+        if item % 2:
+            raise ValueError(f"bad frame {item}")
+
+    def on_error(err: BaseException) -> None:
+        raise RuntimeError(f"the handler failed on {err}")
+
+    worker: LatestQueueWorker[int] = LatestQueueWorker(process, maxsize=8, on_error=on_error)
+    for i in range(6):
+        worker.submit(i)
+    assert worker.drain(60)
+    assert worker.alive
+    worker.stop()
+    assert not worker.alive
+    assert worker.processed == 3 and worker.failed == 3
+    err = capfd.readouterr().err
+    assert err.count("the handler failed on bad frame") == 3 and "Traceback" not in err
+
+
 def test_invalid_configuration_is_rejected() -> None:
     with pytest.raises(ValueError):
         StampPairer(tolerance_ns=-1)

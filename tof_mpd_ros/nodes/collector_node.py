@@ -27,8 +27,10 @@ from __future__ import annotations
 import json
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import rclpy
@@ -51,8 +53,8 @@ from ..collection.hand_eye_io import (
 )
 from ..collection.hand_eye_plan import hand_eye_plan_views
 from ..collection.plan import PlannedView, load_plan, sim_plan
-from ..collection.runner import RunResult, run_plan
-from ..errors import CaptureError, TofMpdError
+from ..collection.runner import CaptureFunction, RunResult, WriteFunction, run_plan
+from ..errors import CaptureError, InputError, TofMpdError
 from ..frame import ToFFrame
 from ..image_encoding import amplitude_to_float, depth_to_mm, image_to_array
 from .parameters import ParameterSpec as P
@@ -129,6 +131,8 @@ PARAMETERS = (
 EXIT_CONFIGURE_FAILED = 2
 EXIT_PLAN_INCOMPLETE = 3
 
+T = TypeVar("T")
+
 
 class TopicCapture:
     """Latest messages per topic, and a blocking wait for a set stamped after a time.
@@ -165,12 +169,18 @@ class TopicCapture:
             return dict(self._latest)
 
     def wait(self, after_ns: int, camera_to_base_m: np.ndarray, timeout_s: float) -> ToFFrame:
-        """A ToF frame (with the reference when present) at ``camera_to_base_m``."""
-        return _frame(self.wait_messages(after_ns, timeout_s), camera_to_base_m)
+        """A ToF frame (with the reference when present) at ``camera_to_base_m``.
+
+        Raises:
+            CaptureError: no such set in time, or its messages cannot be decoded.
+        """
+        messages = self.wait_messages(after_ns, timeout_s)
+        return _decoded(lambda: _frame(messages, camera_to_base_m))
 
     def wait_hand_eye(self, after_ns: int, timeout_s: float) -> HandEyeView:
         """A calibration view: the ToF frame (no pose) and the SL image of the same instant."""
-        return _hand_eye_view(self.wait_messages(after_ns, timeout_s))
+        messages = self.wait_messages(after_ns, timeout_s)
+        return _decoded(lambda: _hand_eye_view(messages))
 
     def _ready(self, after_ns: int) -> bool:
         if any(k not in self._latest for k in self.required):
@@ -178,6 +188,15 @@ class TopicCapture:
         stamps = [stamp_ns(self._latest[k]) for k in self.required]
         depth = stamp_ns(self._latest["depth"])
         return depth > after_ns and all(abs(s - depth) <= self.tolerance_ns for s in stamps)
+
+
+def _decoded(decode: Callable[[], T]) -> T:
+    """``decode()``; messages it cannot decode (a wrong encoding, a payload that does not
+    match its size) are a failed capture, which the plan retries, then skips."""
+    try:
+        return decode()
+    except InputError as err:
+        raise CaptureError(f"cannot decode the captured messages: {err}") from err
 
 
 @dataclass(frozen=True, eq=False)
@@ -357,40 +376,65 @@ class CollectorNode(LifecycleNode):
 
     # -- the plan (worker thread) --------------------------------------------------------
     def _run(self) -> None:
-        p = self.params
-        if self.pending and p["arm_backend"] == "sim":
-            self._wait_for_arm_follower(p["connect_timeout_s"])
-        if self.pending:
-            timeout = p["capture_timeout_s"]
-            if self.calibration:
-                def capture(after: int, pose: np.ndarray) -> HandEyeView:
-                    return self.capture.wait_hand_eye(after, timeout)
+        """The worker: record the pending views, then close and finish. Whatever fails, it
+        reports one line and finishes: a thread that died here would leave the node waiting
+        forever with its recording open."""
+        try:
+            if self.pending:
+                self._record_pending()
+        except Exception as err:  # a failure nothing below foresaw: report it, never hang
+            self.exit_code = EXIT_PLAN_INCOMPLETE
+            self.get_logger().error(f"recording stopped: {type(err).__name__}: {err}; run the "
+                                    "collector again to resume")
+        finally:
+            self._finish()
 
-                def write(view: HandEyeView, tcp: np.ndarray) -> None:
-                    write_hand_eye_view(self.writer, view.frame, tcp, view.sl_image,
-                                        view.sl_intrinsics)
-            else:
-                def capture(after: int, pose: np.ndarray) -> ToFFrame:
-                    return self.capture.wait(after, pose, timeout)
-                write = None
-            self.result = run_plan(
-                self.pending, self.arm, capture, self.writer, self.hand_eye_m,
-                settle_s=p["settle_time_s"], speed=p["speed"], accel=p["accel"],
-                publish_pose=self._publish_pose, should_stop=self._stop.is_set,
-                on_view=lambda done, total: self.get_logger().info(
-                    f"recorded {done}/{total} views"), write_view=write)
-            r = self.result
-            summary = (f"recorded views {r.recorded}; skipped {r.skipped}" +
-                       (f"; stopped at view {r.failed_view}: {r.error}" if not r.ok else ""))
-            (self.get_logger().info if r.ok and not r.skipped else
-             self.get_logger().error)(summary)
-            if not r.ok or r.skipped:
-                self.exit_code = EXIT_PLAN_INCOMPLETE
-            if self.calibration and r.ok:
-                self.get_logger().info(f"solve with: tof-mpd calibrate hand-eye "
-                                       f"{p['session_path']} -o hand_eye.json")
-        self._close()
-        if p["exit_when_done"]:
+    def _record_pending(self) -> None:
+        p = self.params
+        if p["arm_backend"] == "sim":
+            self._wait_for_arm_follower(p["connect_timeout_s"])
+        capture, write = self._view_functions()
+        self.result = run_plan(
+            self.pending, self.arm, capture, self.writer, self.hand_eye_m,
+            settle_s=p["settle_time_s"], speed=p["speed"], accel=p["accel"],
+            publish_pose=self._publish_pose, should_stop=self._stop.is_set,
+            on_view=lambda done, total: self.get_logger().info(
+                f"recorded {done}/{total} views"), write_view=write)
+        self._report(self.result)
+
+    def _view_functions(self) -> tuple[CaptureFunction, WriteFunction | None]:
+        """How a view is captured and written for this plan (None: the default writer)."""
+        timeout = self.params["capture_timeout_s"]
+        if not self.calibration:
+            return (lambda after, pose: self.capture.wait(after, pose, timeout)), None
+
+        def write(view: HandEyeView, tcp: np.ndarray) -> None:
+            write_hand_eye_view(self.writer, view.frame, tcp, view.sl_image,
+                                view.sl_intrinsics)
+
+        return (lambda after, pose: self.capture.wait_hand_eye(after, timeout)), write
+
+    def _report(self, r: RunResult) -> None:
+        summary = (f"recorded views {r.recorded}; skipped {r.skipped}" +
+                   (f"; stopped at view {r.failed_view}: {r.error}" if not r.ok else ""))
+        # One call site per severity: rclpy raises ValueError when the severity logged from
+        # one line changes between calls (a second activation would have killed the worker).
+        if r.ok and not r.skipped:
+            self.get_logger().info(summary)
+        else:
+            self.exit_code = EXIT_PLAN_INCOMPLETE
+            self.get_logger().error(summary)
+        if self.calibration and r.ok:
+            self.get_logger().info(f"solve with: tof-mpd calibrate hand-eye "
+                                   f"{self.params['session_path']} -o hand_eye.json")
+
+    def _finish(self) -> None:
+        try:
+            self._close()
+        except Exception as err:  # e.g. the disk is full: what was flushed stays readable
+            self.exit_code = self.exit_code or EXIT_PLAN_INCOMPLETE
+            self.get_logger().error(f"cannot close the recording: {err}")
+        if self.params["exit_when_done"]:
             rclpy.try_shutdown()
 
     def _wait_for_arm_follower(self, timeout_s: float) -> None:

@@ -37,7 +37,7 @@ from ..correction.depth_stream import (
 from ..correction.weights import load_weights
 from ..errors import InputError, TofMpdError
 from ..image_encoding import mm_to_depth
-from .pairing import LatestQueueWorker, StampPairer
+from .pairing import LatestQueueWorker, StampPairer, last_resort_report
 from .parameters import ParameterSpec as P
 from .parameters import declare
 from .ros_messages import (
@@ -354,14 +354,29 @@ class CorrectorNode(Node):
 
     # -- reporting ----------------------------------------------------------------------
     def _drop(self, reason: str, message: str) -> None:
-        """Count a drop under ``reason``; log the first at once, then every LOG_EVERY_S."""
+        """Count a drop under ``reason``; log the first at once, then every LOG_EVERY_S.
+
+        Called from the worker's error path too, so it must not raise: counting cannot, and
+        a logging failure is reported on stderr instead of propagating.
+        """
         count = self.stats.drop(reason, message)
         now = time.monotonic()
-        if now - self._last_logged.get(reason, -np.inf) >= LOG_EVERY_S:
-            self._last_logged[reason] = now
-            log = (self.get_logger().error if reason == "internal_error"
-                   else self.get_logger().warning)
-            log(f"dropped ({reason}, {count} so far): {message}")
+        if now - self._last_logged.get(reason, -np.inf) < LOG_EVERY_S:
+            return
+        self._last_logged[reason] = now
+        text = f"dropped ({reason}, {count} so far): {message}"
+        try:
+            self._log_drop(reason, text)
+        except Exception as err:  # never let a report take the worker (or a callback) down
+            last_resort_report(f"[corrector] {text} (logging failed: {err!r})")
+
+    def _log_drop(self, reason: str, text: str) -> None:
+        # One call site per severity: rclpy raises ValueError when the severity logged from
+        # one line changes between calls.
+        if reason == "internal_error":
+            self.get_logger().error(text)
+        else:
+            self.get_logger().warning(text)
 
     def _missing_stream(self, now: float) -> str:
         """Why depth images cannot pair (a silent partner stream), or ``""``."""

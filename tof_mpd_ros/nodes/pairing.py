@@ -8,6 +8,7 @@ is a small purpose-built replacement rather than a port.
 from __future__ import annotations
 
 import collections
+import sys
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -160,6 +161,11 @@ class LatestQueueWorker(Generic[T]):
             self._queue.append(item)
             self._cond.notify()
 
+    @property
+    def alive(self) -> bool:
+        """Whether the worker thread runs (it ends only after :meth:`stop`)."""
+        return self._thread.is_alive()
+
     def _run(self) -> None:
         while True:
             with self._cond:
@@ -170,16 +176,29 @@ class LatestQueueWorker(Generic[T]):
                 item = self._queue.popleft()
                 self._busy = True
             try:
-                self._process(item)
-                self.processed += 1
-            except Exception as err:  # a bad frame must not kill the worker
-                self.failed += 1
-                if self._on_error is not None:
-                    self._on_error(err)
+                self._handle(item)
             finally:
                 with self._cond:
                     self._busy = False
                     self._cond.notify_all()
+
+    def _handle(self, item: T) -> None:
+        """Process one item; nothing it raises, nor its error handler, ends the thread."""
+        try:
+            self._process(item)
+            self.processed += 1
+        except Exception as err:  # a bad frame must not kill the worker
+            self.failed += 1
+            self._report(err)
+
+    def _report(self, err: Exception) -> None:
+        if self._on_error is None:
+            return
+        try:
+            self._on_error(err)
+        except Exception as handler_err:  # nor may a failing report (e.g. a logging error)
+            last_resort_report(f"{self._thread.name}: error handler failed on {err!r}: "
+                         f"{handler_err!r}")
 
     def drain(self, timeout: float | None = None) -> bool:
         """Wait until the queue is empty and the worker idle; False on timeout."""
@@ -194,3 +213,12 @@ class LatestQueueWorker(Generic[T]):
             self._stopping = True
             self._cond.notify_all()
         self._thread.join(timeout)
+
+
+def last_resort_report(line: str) -> None:
+    """One line on stderr when nothing better is left; never raises."""
+    try:
+        sys.stderr.write(line + "\n")
+        sys.stderr.flush()
+    except Exception:  # stderr closed: nothing left to tell
+        pass

@@ -22,7 +22,7 @@ import threading
 import time
 
 import numpy as np
-from geometry_msgs.msg import PoseStamped
+from geometry_msgs.msg import Pose, PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
@@ -150,6 +150,8 @@ class SimCellNode(Node):
         self._rendered_pose_mm: np.ndarray | None = None
         self._stop = threading.Event()
         self.frames_rendered = 0
+        self.render_failures = 0
+        self._cycle_rendered = False
         self.create_subscription(PoseStamped, p["tcp_pose_topic"], self._on_tcp_pose, 10)
         self._worker = threading.Thread(target=self._render_loop, daemon=True)
         self._worker.start()
@@ -158,26 +160,43 @@ class SimCellNode(Node):
 
     # -- rendering (worker thread) -------------------------------------------------------
     def _render_loop(self) -> None:
+        """The worker: the start-up views, then a view at each new arm pose. A view that
+        fails to render is reported and skipped; the thread goes on."""
         start = time.monotonic()
         for camera_to_base_mm in self.cycle_poses:
             if self._stop.is_set():
                 return
-            messages = self._render(camera_to_base_mm)
+            messages = self._render_or_report(camera_to_base_mm)
             with self._lock:
-                self._cycle.append(messages)
-        self.get_logger().info(f"rendered the {len(self.cycle_poses)} start-up views in "
-                               f"{time.monotonic() - start:.1f} s")
+                if messages is not None:
+                    self._cycle.append(messages)
+        with self._lock:
+            self._cycle_rendered = True
+        self.get_logger().info(f"rendered {len(self._cycle)} of the {len(self.cycle_poses)} "
+                               f"start-up views in {time.monotonic() - start:.1f} s")
         while not self._stop.is_set():
             if not self._render_request.wait(0.1):
                 continue
             with self._lock:
                 pose = self._pending_pose_mm
                 self._render_request.clear()
-            messages = self._render(pose)
+            messages = self._render_or_report(pose)
             with self._lock:
-                if self._pending_pose_mm is pose:  # no newer pose arrived meanwhile
+                if messages is not None and self._pending_pose_mm is pose:  # no newer pose
                     self._current = messages
                     self._rendered_pose_mm = pose
+
+    def _render_or_report(self, camera_to_base_mm: np.ndarray
+                          ) -> dict[str, Image | CameraInfo] | None:
+        """The view's messages, or None (logged, counted) when rendering it failed."""
+        try:
+            return self._render(camera_to_base_mm)
+        except Exception as err:  # one view must not end the renderer for good
+            self.render_failures += 1
+            self.get_logger().error(
+                f"cannot render the view at {np.round(camera_to_base_mm[:3, 3], 1).tolist()} "
+                f"mm: {type(err).__name__}: {err}")
+            return None
 
     def _render(self, camera_to_base_mm: np.ndarray) -> dict[str, Image | CameraInfo]:
         self.frames_rendered += 1
@@ -216,7 +235,12 @@ class SimCellNode(Node):
     def _on_tcp_pose(self, msg: PoseStamped) -> None:
         if not self.params["follow_arm"]:
             return
-        camera_mm = pose_m_to_mm(pose_matrix(msg.pose) @ self.hand_eye_m)
+        try:
+            camera_mm = pose_m_to_mm(_valid_pose(msg.pose) @ self.hand_eye_m)
+        except ValueError as err:  # an exception here would end the node's executor
+            self.get_logger().warning(f"ignored a TCP pose on {self.params['tcp_pose_topic']}: "
+                                      f"{err}")
+            return
         with self._lock:
             reference = self._pending_pose_mm if self._pending_pose_mm is not None else None
             if reference is not None and _same_pose(reference, camera_mm):
@@ -230,7 +254,7 @@ class SimCellNode(Node):
         with self._lock:
             if self._pending_pose_mm is not None:
                 messages = self._current
-            elif len(self._cycle) == len(self.cycle_poses) and not arm_present:
+            elif self._cycle_rendered and self._cycle and not arm_present:
                 # Only once every view is rendered: a steady stream, not one that starts
                 # while the renderer still takes the CPU from its consumers.
                 messages = self._cycle[self._tick % len(self._cycle)]
@@ -254,6 +278,18 @@ class SimCellNode(Node):
         self._stop.set()
         self._worker.join(5.0)
         super().destroy_node()
+
+
+def _valid_pose(pose: Pose) -> np.ndarray:
+    """(4, 4) transform of a ``geometry_msgs/Pose``.
+
+    Raises:
+        ValueError: a zero quaternion or a non-finite value.
+    """
+    matrix = pose_matrix(pose)  # scipy: ValueError on a zero-norm quaternion
+    if not np.isfinite(matrix).all():
+        raise ValueError("the pose is not finite")
+    return matrix
 
 
 def _same_pose(a_mm: np.ndarray, b_mm: np.ndarray, tol_mm: float = 0.5,
