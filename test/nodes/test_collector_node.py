@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import signal
 import time
 from pathlib import Path
@@ -112,6 +113,51 @@ def test_collector_that_cannot_configure_exits_non_zero(tmp_path: Path) -> None:
                                          "plan_file": str(tmp_path / "plan.yaml")}, DOMAIN, log)
     assert collector.wait(300) == 2
     assert "6-vectors" in log.read_text()
+
+
+
+def views_logged(log: Path) -> int:
+    """The highest k of the collector's "recorded k/n views" lines (0 before the first)."""
+    found = re.findall(r"recorded (\d+)/\d+ views", log.read_text())
+    return max(map(int, found), default=0)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_mid_plan_stops_the_collector_with_its_recording_finalised(
+        sim_cell, tmp_path: Path, signum: int) -> None:
+    """Exit code 0, no traceback, and the part closed properly: an MCAP summary (what ros2 bag
+    info and rosbags read), every view the log reported recorded present, nothing else."""
+    from mcap.reader import make_reader
+    from rosbags.highlevel import AnyReader
+
+    views = 6
+    log = tmp_path / "collector.log"
+    collector = start_node("collector", {**COLLECTOR, "session_path": str(tmp_path / "s"),
+                                         "views": views}, DOMAIN, log)
+    part0 = tmp_path / "s" / "part_000"
+    deadline = time.monotonic() + 300
+    while views_logged(log) < 1 and collector.poll() is None:
+        assert time.monotonic() < deadline, log.read_text()[-3000:]
+        time.sleep(0.2)
+    collector.send_signal(signum)
+    try:
+        code = collector.wait(180)
+    finally:
+        stop_node(collector, 10)
+    text = log.read_text()
+    assert code == 0 and "Traceback" not in text, text[-3000:]
+    recorded = views_logged(log)
+    assert 1 <= recorded < views, text[-3000:]  # stopped mid-plan
+    assert session.parts(tmp_path / "s") == [part0]
+    with open(part0 / "part_000_0.mcap", "rb") as f:
+        assert make_reader(f).get_summary() is not None  # finalised, not just recoverable
+    with AnyReader([part0]) as reader:
+        ranges = [c for c in reader.connections if c.topic == "/tof/range/image_raw"]
+        assert sum(1 for _ in reader.messages(connections=ranges)) == recorded
+    assert frames_in(part0) == recorded
+    plan = sim_plan(0, "test", 0, views, DEFAULT_T_FLANGE_CAMERA_M)
+    counts = session.completed_views(tmp_path / "s", plan, DEFAULT_T_FLANGE_CAMERA_M)
+    assert counts == {i: int(i < recorded) for i in range(views)}, counts
 
 
 FAKE_DOMAIN = domain_id(10)  # topics published by the test itself, no sim_cell

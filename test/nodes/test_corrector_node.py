@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import json
+import signal
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -784,3 +785,44 @@ def test_pairer_restarts_after_a_run_of_out_of_order_stamps() -> None:
     assert pairer.stats.resets == 1 and pairer.stats.unmatched_left == 2
     assert pairer.add_left(2_000, "d2") == (2_000, "d2", "a2")
     assert StampPairer(1000).add_left(5, "x") is None  # reset_after=0: never (the default)
+
+
+# -- 5. stops: a signal mid-stream ends the process cleanly ----------------------------------
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_mid_stream_stops_the_corrector_cleanly(weights: dict[str, Path],
+                                                         tmp_path: Path, signum: int) -> None:
+    """Frames keep coming while the node stops: its worker ends before the context goes, so
+    nothing fails to publish (an internal error), no traceback, exit code 0."""
+    log = tmp_path / "corrector.log"
+    process = start_corrector(weights["paper"], STREAM_DOMAIN, log)
+    h, w = PAPER
+    v, u = np.mgrid[0:h, 0:w]
+    depth = image_message((0.4 + 0.0005 * u + 0.0002 * v).astype(np.float32), "32FC1", "tof")
+    amplitude = image_message((500.0 + 2.0 * u).astype(np.float32), "32FC1", "tof")
+    messages = (depth, amplitude,
+                camera_info_message(Intrinsics.from_fov(w, h, 60.0), "tof"))
+    try:
+        with listener(STREAM_DOMAIN) as lis:
+            outputs: list[Image] = []
+            lis.node.create_subscription(Image, OUTPUT, outputs.append, DEEP)
+            qos = qos_profile_sensor_data
+            publishers = [lis.node.create_publisher(Image, "/tof/depth/image_raw", qos),
+                          lis.node.create_publisher(Image, "/tof/amplitude/image_raw", qos),
+                          lis.node.create_publisher(CameraInfo, "/tof/camera_info", qos)]
+            wait_for_corrector(lis, process, log)
+            deadline = time.monotonic() + 300.0
+            signalled = False
+            while process.poll() is None:  # ~30 Hz, until the process has ended
+                assert time.monotonic() < deadline, log.read_text()[-3000:]
+                send(publishers, messages, time.time_ns())
+                lis.spin_until(lambda: False, 0.03)
+                if not signalled and len(outputs) >= 10:  # mid-stream: the worker is busy
+                    process.send_signal(signum)
+                    signalled = True
+            assert signalled
+    finally:
+        stop_node(process)
+    text = log.read_text()
+    assert process.returncode == 0, text[-3000:]
+    assert "Traceback" not in text and "internal_error" not in text, text[-3000:]
+    assert "[ERROR]" not in text, text[-3000:]

@@ -75,8 +75,10 @@ def run_plan(pending: list[PlannedView], arm, capture: CaptureFunction, writer,
         if publish_pose is not None:
             publish_pose(tcp)
         time.sleep(settle_s)
-        frame = _capture_with_retry(capture, tcp @ hand_eye_m, view.index)
+        frame = _capture_with_retry(capture, tcp @ hand_eye_m, view.index, should_stop)
         if frame is None:
+            if should_stop():  # a capture cut short by a stop is not a skipped view
+                break
             result.skipped.append(view.index)
             continue
         if write_view is None:
@@ -90,8 +92,10 @@ def run_plan(pending: list[PlannedView], arm, capture: CaptureFunction, writer,
 
 
 def _capture_with_retry(capture: CaptureFunction, camera_to_base_m: np.ndarray,
-                        index: int) -> Any:
+                        index: int, should_stop: Callable[[], bool]) -> Any:
     for attempt in (1, 2):
+        if should_stop():
+            return None
         after_ns = time.time_ns()
         try:
             return capture(after_ns, camera_to_base_m)

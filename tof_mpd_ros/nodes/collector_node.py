@@ -33,7 +33,6 @@ from pathlib import Path
 from typing import TypeVar
 
 import numpy as np
-import rclpy
 from geometry_msgs.msg import PoseStamped
 from rclpy.lifecycle import LifecycleNode, State, TransitionCallbackReturn
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
@@ -144,6 +143,7 @@ class TopicCapture:
 
     def __init__(self, tolerance_ns: int, required: tuple[str, ...]) -> None:
         self._cond = threading.Condition()
+        self._cancelled = False
         self._latest: dict[str, object] = {}
         self.tolerance_ns = tolerance_ns
         self.required = required
@@ -154,15 +154,25 @@ class TopicCapture:
             self._latest[key] = msg
             self._cond.notify_all()
 
+    def cancel(self) -> None:
+        """End every wait, now and later, with a CaptureError (the node is stopping)."""
+        with self._cond:
+            self._cancelled = True
+            self._cond.notify_all()
+
     def wait_messages(self, after_ns: int, timeout_s: float) -> dict[str, object]:
         """The latest messages once the required ones are synchronised and newer than
         ``after_ns``.
 
         Raises:
-            CaptureError: no such set within ``timeout_s``.
+            CaptureError: no such set within ``timeout_s``, or the capture was cancelled.
         """
         with self._cond:
-            if not self._cond.wait_for(lambda: self._ready(after_ns), timeout_s):
+            ready = self._cond.wait_for(lambda: self._cancelled or self._ready(after_ns),
+                                        timeout_s)
+            if self._cancelled:
+                raise CaptureError("capture cancelled: the collector is stopping")
+            if not ready:
                 have = sorted(k for k, m in self._latest.items() if stamp_ns(m) > after_ns)
                 raise CaptureError(f"no synchronised set within {timeout_s:.1f} s "
                                    f"(fresh: {have or 'nothing'})")
@@ -276,20 +286,23 @@ class CollectorNode(LifecycleNode):
         self._stop = threading.Event()
         self._close_lock = threading.Lock()
         self._worker: threading.Thread | None = None
-        if p["autostart"]:
-            self.create_timer(0.0, self._autostart_once)
-        self._autostarted = False
+        # Set to end the process (ros_runtime.spin_node), like a signal.
+        self.stop_requested = threading.Event()
+        self._autostart_timer = (self.create_timer(0.0, self._autostart_once)
+                                 if p["autostart"] else None)
         self.exit_code = 0
 
     def _autostart_once(self) -> None:
-        if self._autostarted:
+        # A 0 s timer fires on every spin: cancel it, or it keeps a core busy.
+        assert self._autostart_timer is not None
+        if self._autostart_timer.is_canceled():
             return
-        self._autostarted = True
+        self._autostart_timer.cancel()
         if self.trigger_configure() == TransitionCallbackReturn.SUCCESS:
             self.trigger_activate()
         elif self.params["exit_when_done"]:
             self.exit_code = EXIT_CONFIGURE_FAILED
-            rclpy.try_shutdown()
+            self.stop_requested.set()
 
     # -- lifecycle -----------------------------------------------------------------------
     def on_configure(self, state: State) -> TransitionCallbackReturn:
@@ -360,9 +373,7 @@ class CollectorNode(LifecycleNode):
         return super().on_activate(state)
 
     def on_deactivate(self, state: State) -> TransitionCallbackReturn:
-        self._stop.set()
-        if self._worker is not None and self._worker is not threading.current_thread():
-            self._worker.join()
+        self._stop_worker(timeout_s=None, cancel_capture=False)  # after the current view
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: State) -> TransitionCallbackReturn:
@@ -370,9 +381,33 @@ class CollectorNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: State) -> TransitionCallbackReturn:
-        self._stop.set()
+        self._stop_worker(timeout_s=self._worker_stop_s())
         self._close()
         return TransitionCallbackReturn.SUCCESS
+
+    def destroy_node(self) -> None:
+        # Called while the context is still valid (ros_runtime.spin_node, on a signal too): the
+        # view in progress ends (a capture is cancelled, a move completes), then the recording
+        # is finalised, before the node and the context go.
+        self._stop_worker(timeout_s=self._worker_stop_s())
+        try:
+            self._close()
+        except Exception as err:  # e.g. the disk is full: what was flushed stays readable
+            self.get_logger().error(f"cannot close the recording: {err}")
+        super().destroy_node()
+
+    def _worker_stop_s(self) -> float:
+        """The longest the view in progress can take to end: an arm move, then a margin."""
+        return self.params["move_timeout_s"] + 30.0
+
+    def _stop_worker(self, timeout_s: float | None, *, cancel_capture: bool = True) -> None:
+        """Ask the worker to stop after its view and wait; ``cancel_capture`` also ends a
+        capture in progress, for good (the node is going)."""
+        self._stop.set()
+        if cancel_capture:
+            self.capture.cancel()
+        if self._worker is not None and self._worker is not threading.current_thread():
+            self._worker.join(timeout_s)
 
     # -- the plan (worker thread) --------------------------------------------------------
     def _run(self) -> None:
@@ -435,7 +470,7 @@ class CollectorNode(LifecycleNode):
             self.exit_code = self.exit_code or EXIT_PLAN_INCOMPLETE
             self.get_logger().error(f"cannot close the recording: {err}")
         if self.params["exit_when_done"]:
-            rclpy.try_shutdown()
+            self.stop_requested.set()
 
     def _wait_for_arm_follower(self, timeout_s: float) -> None:
         """Wait until something (the sim_cell node) subscribes to the TCP pose.

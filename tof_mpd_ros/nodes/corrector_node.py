@@ -101,6 +101,8 @@ STALE_AFTER_S = 1.0
 CAMERA_INFO_WAIT_S = 1.0
 # Each drop reason is logged at once, then at most every LOG_EVERY_S (with the count).
 LOG_EVERY_S = 5.0
+# How long a stop waits for the frame in progress (many seconds on a loaded machine at most).
+WORKER_STOP_S = 30.0
 
 
 @dataclass
@@ -233,6 +235,7 @@ class CorrectorNode(Node):
         self._camera_info: CameraInfo | None = None
         self._camera_info_ready = threading.Event()
         self._pair_lock = threading.Lock()
+        self._stopping = threading.Event()
         self._last_logged: dict[str, float] = {}
         self.pairer: StampPairer[Image, Image] = StampPairer(
             round(self.params["sync_tolerance_s"] * 1e9), history=PAIRING_HISTORY,
@@ -334,6 +337,8 @@ class CorrectorNode(Node):
         except FrameRejected as err:
             self._drop(err.reason, str(err))
             return
+        if self._stopping.is_set():  # the node is going: its publishers may already be gone
+            return
         self._publish(pair, result, info)
         self.stats.done((time.monotonic() - pair.received) * 1e3)
 
@@ -421,7 +426,10 @@ class CorrectorNode(Node):
         self.pub_diag.publish(msg)
 
     def destroy_node(self) -> None:
-        self.worker.stop(timeout=5.0, discard=True)
+        # Called while the context is still valid (ros_runtime.spin_node): the frame in
+        # progress finishes (unpublished) before the publishers and the context go.
+        self._stopping.set()
+        self.worker.stop(timeout=WORKER_STOP_S, discard=True)
         super().destroy_node()
 
 

@@ -96,6 +96,9 @@ PARAMETERS = (
     P("sl_frame_id", "sl_optical_frame", "frame_id of the SL camera image.", read_only=True),
 )
 
+# How long a stop waits for the view being rendered.
+WORKER_STOP_S = 60.0
+
 
 class SimCellNode(Node):
     def __init__(self) -> None:
@@ -275,8 +278,9 @@ class SimCellNode(Node):
             self.count_publishers(self.params["tcp_pose_topic"]) > 0
 
     def destroy_node(self) -> None:
+        # The renderer checks _stop between views; one render can take seconds when loaded.
         self._stop.set()
-        self._worker.join(5.0)
+        self._worker.join(WORKER_STOP_S)
         super().destroy_node()
 
 
