@@ -34,9 +34,9 @@ from .likelihood import REFERENCE_NOISE_MM, tile_t_statistic, total_sigma
 from .locate import describe_stratum, locate, strata
 from .predict import FramePredictor
 from .profile import (
-    ALBEDO_DOUBT,
     ALBEDO_EFFECT,
-    ALBEDO_EXPONENT,
+    CAMERA_WINDOW_WHY,
+    CAMERA_WINDOWS,
     PROFILE_EFFECTS,
     adopt_recording,
     albedo_from_interreflection,
@@ -253,14 +253,14 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
         # the camera's level stays a free profile parameter while physics is named on top
         search.problem = replace(search.problem, free_level=True, _base_cost={}, _level=None)
         search.refit = profile
-        if ALBEDO_EFFECT in candidates:
-            # the units were assumed, so the scene's albedo is known only within ALBEDO_DOUBT:
-            # the interreflection's strength within what that allows is the scene's albedo,
-            # part of the profile; left in the residual, other effects would absorb it. Fitted
-            # with the level free: interreflection lifts every range a little
-            search.profile_boxes = {ALBEDO_EFFECT: albedo_box()}
-            profile += search.greedy([ALBEDO_EFFECT], 1, boxes=search.profile_boxes)
-            search.refit = profile
+        # what the camera has its own value of within a window (the scene's albedo, known
+        # only within the grey world's doubt, sets the interreflection's strength; the lens
+        # its blur) is part of the profile; left in the residual, other effects would absorb
+        # it. Fitted with the level free: interreflection lifts every range a little
+        own = [c for c in candidates if c in CAMERA_WINDOWS]
+        search.profile_boxes = {c: window_box(c) for c in own}
+        profile += search.greedy(own, len(own), boxes=search.profile_boxes)
+        search.refit = profile
         scene = [c for c in candidates if c not in PROFILE_EFFECTS]
     else:
         scene = list(candidates)
@@ -350,16 +350,14 @@ class _Search:
         for r in results:
             if not _significant(r, threshold, self.min_t):
                 return None
-            if self.units_assumed and r.effect not in boxed and within_units_doubt(r):
+            if self.units_assumed and r.effect not in boxed and within_camera_window(r):
+                param, lo, hi = CAMERA_WINDOWS[r.effect]
                 self.unexplained.append({
                     "round": k + 1, "effect": r.effect, "score": round(r.score, 3),
                     "parameters_at_edge": {},
-                    "why": f"gain {r.parameters['gain']:.2f} is within what the unknown "
-                           "amplitude units allow (the grey world's albedo may be off by "
-                           f"{ALBEDO_DOUBT[0]:.1f}-{ALBEDO_DOUBT[1]:.1f}x, and interreflection "
-                           f"scales as albedo^{ALBEDO_EXPONENT:g}: gain "
-                           f"{UNITS_DOUBT[0]:.2f}-{UNITS_DOUBT[1]:.2f}): not named as missing "
-                           "physics",
+                    "why": f"{param} {r.parameters[param]:.2f} is within what the camera "
+                           f"itself may have ({lo:.2f}-{hi:.2f}: {CAMERA_WINDOW_WHY[r.effect]})"
+                           ": not named as missing physics",
                     "where": self.location.get("flagged", [])[:3]})
                 continue
             edge = parameters_at_edge(r)
@@ -384,9 +382,10 @@ class _Search:
             current = self.problem.base
             without = replace(current, effects={**current.effects,
                                                 name: given.effects[name]})
-            # judged at the given level: a free level would hide a changed offset; but not the
-            # albedo's interreflection, which lifts every range a little
-            trial = replace(_rebased(self.problem, without), free_level=name == ALBEDO_EFFECT)
+            # judged at the given level: a free level would hide a changed offset; but what was
+            # fitted with the level free (the camera's windows) is judged so again
+            trial = replace(_rebased(self.problem, without),
+                            free_level=name in self.profile_boxes)
             back = score_fit(trial, FitResult(name, current, {}, len(free_params(name))))
             if _significant(back, self.min_score, self.min_t):
                 kept.append(name)
@@ -453,23 +452,26 @@ def _rebased(p: Problem, config: ToFConfig) -> Problem:
                    free_level=p.free_level)
 
 
-#: the multipath gains the unknown amplitude units explain alone when they were assumed: the
-#: camera's profile takes such a gain (the scene's albedo), physics is named only beyond it
-UNITS_DOUBT = (ALBEDO_DOUBT[0] ** ALBEDO_EXPONENT, ALBEDO_DOUBT[1] ** ALBEDO_EXPONENT)
+#: the multipath gains the unknown amplitude units explain alone when they were assumed
+UNITS_DOUBT = CAMERA_WINDOWS[ALBEDO_EFFECT][1:]
 
 
-def within_units_doubt(result: FitResult) -> bool:
-    """A multipath gain the unknown amplitude units could explain alone (albedo and units are
-    degenerate, and the indirect share of the return scales with the senders' albedo)."""
-    if result.effect != ALBEDO_EFFECT or "gain" not in result.parameters:
+def within_camera_window(result: FitResult) -> bool:
+    """A fit the camera itself could explain (:data:`.profile.CAMERA_WINDOWS`): a multipath
+    gain the unknown amplitude units allow (albedo and units are degenerate, and the indirect
+    share of the return scales with the senders' albedo), a blur a focused lens gives."""
+    if result.effect not in CAMERA_WINDOWS:
         return False
-    return UNITS_DOUBT[0] <= result.parameters["gain"] <= UNITS_DOUBT[1]
+    param, lo, hi = CAMERA_WINDOWS[result.effect]
+    return param in result.parameters and lo <= result.parameters[param] <= hi
 
 
-def albedo_box() -> list[tuple[float, float]]:
-    """Unit-box limits of :data:`ALBEDO_EFFECT`'s gain within :data:`UNITS_DOUBT`."""
-    (gain,) = free_params(ALBEDO_EFFECT)
-    return [(gain.unit(UNITS_DOUBT[0]), gain.unit(UNITS_DOUBT[1]))]
+def window_box(effect: str) -> list[tuple[float, float]]:
+    """Unit-box limits of ``effect``'s free parameters: its camera window's parameter within
+    the window, the others free."""
+    param, lo, hi = CAMERA_WINDOWS[effect]
+    return [(p.unit(lo), p.unit(hi)) if p.name == param else (0.0, 1.0)
+            for p in free_params(effect)]
 
 
 #: a fitted parameter within this fraction of its range from an edge sits at the edge

@@ -49,6 +49,26 @@ ALBEDO_EFFECT = "multipath"
 #: (measured on tabletop scenes: 0.6× the albedo gives 0.57-0.59× the indirect phasor, an
 #: exponent of 1.02-1.09; ``test_interreflection_scales_with_the_albedo``)
 ALBEDO_EXPONENT = 1.1
+#: the widest optical blur of a lens focused on the scene (σ, px; FWHM 1.4 px, i.e. the lens
+#: still resolves about its pixel pitch); the simulator's nominal cell has 0.3
+LENS_PSF_MAX_PX = 0.6
+#: effects the simulator names as physics that every camera also has its own value of, within
+#: a window (effect -> (parameter, low, high)): the interreflection's strength, set by the
+#: scene's albedo when the amplitude units were assumed, and the lens's point spread. The
+#: one-shot profile fits them inside the window; they are named as physics only beyond it.
+CAMERA_WINDOWS: dict[str, tuple[str, float, float]] = {
+    ALBEDO_EFFECT: ("gain", ALBEDO_DOUBT[0] ** ALBEDO_EXPONENT,
+                    ALBEDO_DOUBT[1] ** ALBEDO_EXPONENT),
+    "mixed_pixels": ("psf_sigma_px", 0.0, LENS_PSF_MAX_PX),
+}
+#: why a value inside the window is the camera's, in words
+CAMERA_WINDOW_WHY: dict[str, str] = {
+    ALBEDO_EFFECT: (f"the grey world's albedo may be off by {ALBEDO_DOUBT[0]:g}-"
+                    f"{ALBEDO_DOUBT[1]:g}x and interreflection scales as "
+                    f"albedo^{ALBEDO_EXPONENT:g}"),
+    "mixed_pixels": (f"a lens focused on the scene blurs by up to {LENS_PSF_MAX_PX:g} px: "
+                     "the camera's own point spread"),
+}
 #: inferred albedo is implausible for a config's amplitude units when its median leaves this
 #: range or more than ``BRIGHT_SHARE`` of the pixels come out brighter than a white diffuser
 PLAUSIBLE_MEDIAN_ALBEDO = (0.15, 0.95)
@@ -191,6 +211,9 @@ def describe_profile(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any
         elif name == "amplitude_bias":
             words.append(f"amplitude bias {float(p['bias_mm']):+.1f} mm (exponent "
                          f"{float(p['exponent']):.2g})")
+        elif name == "mixed_pixels":
+            words.append(f"lens blur {float(p['psf_sigma_px']):.2g} px (nominal "
+                         f"{float(nominal.params(name)['psf_sigma_px']):.2g})")
         elif name == ALBEDO_EFFECT and "albedo_scale" in facts:
             words.append(f"interreflection {float(p['gain']):.2g}× the grey world's: the "
                          f"scene's albedo about {facts['albedo_scale']:.2g}× "
@@ -199,7 +222,8 @@ def describe_profile(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any
     return words
 
 
-__all__ = ["ALBEDO_DOUBT", "ALBEDO_EFFECT", "ALBEDO_EXPONENT", "GREY_WORLD_ALBEDO",
-           "PROFILE_EFFECTS", "SCENE_EFFECTS", "adopt_recording", "albedo_from_interreflection",
+__all__ = ["ALBEDO_DOUBT", "ALBEDO_EFFECT", "ALBEDO_EXPONENT", "CAMERA_WINDOWS",
+           "CAMERA_WINDOW_WHY", "GREY_WORLD_ALBEDO", "LENS_PSF_MAX_PX", "PROFILE_EFFECTS",
+           "SCENE_EFFECTS", "adopt_recording", "albedo_from_interreflection",
            "describe_profile", "scene_albedo", "units_plausible", "with_amplitude_units",
            "with_scene_distance"]
