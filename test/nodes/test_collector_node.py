@@ -5,6 +5,7 @@ from __future__ import annotations
 import re
 import signal
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -159,6 +160,60 @@ def test_a_signal_mid_plan_stops_the_collector_with_its_recording_finalised(
     counts = session.completed_views(tmp_path / "s", plan, DEFAULT_T_FLANGE_CAMERA_M)
     assert counts == {i: int(i < recorded) for i in range(views)}, counts
 
+
+def limit_file_size(limit: int) -> Callable[[], None]:
+    """A child's set-up: no file may grow past ``limit`` bytes; a write past it fails (EFBIG,
+    as ENOSPC on a full disk) instead of killing the process (SIGXFSZ)."""
+    def apply() -> None:
+        import resource
+
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+    return apply
+
+
+def wait_or_traceback(process, log: Path, timeout: float) -> int | None:
+    """The exit code, or None when the log shows a traceback first (or time runs out)."""
+    deadline = time.monotonic() + timeout
+    while process.poll() is None and time.monotonic() < deadline \
+            and "Traceback" not in log.read_text():
+        time.sleep(0.5)
+    return process.poll()
+
+
+def test_a_full_disk_ends_the_collector_with_one_error_and_a_resume_completes_the_plan(
+        sim_cell, tmp_path: Path) -> None:
+    from tof_mpd_ros.nodes.collector_node import EXIT_PLAN_INCOMPLETE
+
+    views, limit = 4, 700_000  # a view takes ~0.3 MB: the third does not fit
+    params = {**COLLECTOR, "session_path": str(tmp_path / "s"), "views": views}
+    log = tmp_path / "full.log"
+    full = start_node("collector", params, DOMAIN, log, preexec_fn=limit_file_size(limit))
+    try:
+        code = wait_or_traceback(full, log, 540)
+    finally:
+        stop_node(full, 10)
+    text = log.read_text()
+    assert code == EXIT_PLAN_INCOMPLETE and "Traceback" not in text, text[-3000:]
+    errors = [line for line in text.splitlines() if "[ERROR]" in line]
+    assert len(errors) == 1, errors  # one clear line: what failed, what is kept, what to do
+    assert "cannot write the recording" in errors[0] and "File too large" in errors[0]
+    assert "run again to resume" in errors[0]
+    part0 = tmp_path / "s" / "part_000"
+    kept = frames_in(part0)
+    assert 1 <= kept == views_logged(log) < views, text[-3000:]
+    assert (part0 / "part_000_0.mcap").stat().st_size <= limit
+
+    log = tmp_path / "resume.log"
+    resume = start_node("collector", params, DOMAIN, log)
+    try:
+        assert wait_or_traceback(resume, log, 540) == 0, log.read_text()[-3000:]
+    finally:
+        stop_node(resume, 10)
+    plan = sim_plan(0, "test", 0, views, DEFAULT_T_FLANGE_CAMERA_M)
+    counts = session.completed_views(tmp_path / "s", plan, DEFAULT_T_FLANGE_CAMERA_M)
+    assert counts == {i: 1 for i in range(views)}, counts
+    assert frames_in(tmp_path / "s" / "part_001") == views - kept
 
 FAKE_DOMAIN = domain_id(10)  # topics published by the test itself, no sim_cell
 

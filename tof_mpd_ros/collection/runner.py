@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import ArmError, CaptureError
+from ..errors import ArmError, CaptureError, RecordingError
 from .plan import PlannedView
 
 log = logging.getLogger(__name__)
@@ -44,8 +44,9 @@ def run_plan(pending: list[PlannedView], arm, capture: CaptureFunction, writer,
              write_view: WriteFunction | None = None) -> RunResult:
     """Visit ``pending`` views in order and record one frame at each.
 
-    An arm failure (disconnect, protective stop, timeout) ends the run: everything recorded so
-    far is already flushed, and a later run resumes from the next missing view. A capture that
+    An arm failure (disconnect, protective stop, timeout) or a recording that cannot be written
+    (disk full) ends the run: everything recorded so far is already flushed, and a later run
+    resumes from the next missing view. A capture that
     times out is retried once, then the view is skipped (reported, never silently dropped).
 
     Args:
@@ -81,10 +82,16 @@ def run_plan(pending: list[PlannedView], arm, capture: CaptureFunction, writer,
                 break
             result.skipped.append(view.index)
             continue
-        if write_view is None:
-            writer.write_frame(frame, tcp_pose=tcp, hand_eye=hand_eye_m)
-        else:
-            write_view(frame, tcp)
+        try:
+            if write_view is None:
+                writer.write_frame(frame, tcp_pose=tcp, hand_eye=hand_eye_m)
+            else:
+                write_view(frame, tcp)
+        except RecordingError as err:  # e.g. the disk is full: what is written stays
+            result.failed_view = view.index
+            result.error = f"cannot write the recording: {err}; run again to resume"
+            log.error("view %d: %s", view.index, result.error)
+            return result
         result.recorded.append(view.index)
         if on_view is not None:
             on_view(len(result.recorded), len(pending))

@@ -4,18 +4,20 @@ Layout: ``<dir>/metadata.yaml`` + ``<dir>/<dir name>_0.mcap`` (profile ``ros2``,
 ``cdr``, schema encoding ``ros2msg``). Every :meth:`RecordingWriter.write_frame` closes an MCAP
 chunk and flushes it to the operating system, so a writer killed with SIGKILL leaves a file whose
 complete frames are all recoverable (:class:`~tof_mpd_ros.recordings.reader.RecordingReader`
-reads files without a summary section).
+reads files without a summary section). A write that fails (disk full, file size limit) cuts the
+file back to the end of its last complete frame and closes the writer, so the same holds then.
 """
 
 from __future__ import annotations
 
 import logging
+import os
 import shutil
 import time
 from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
 import yaml
@@ -53,6 +55,42 @@ DEFAULT_FRAME_IDS = FrameIds()
 _POSE_TOLERANCE = 1e-6
 # metadata.yaml is rewritten at most this often while recording (and at open/close/new topic).
 _METADATA_REFRESH_S = 5.0
+
+
+class _FileSink:
+    """The MCAP file, unbuffered: each write reaches the operating system whole or raises, and
+    the file can be cut back to an earlier length.
+
+    A buffered file would keep the bytes of a failed write and try them again on close, past a
+    cut; here nothing is left behind.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self._fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        self._position = 0
+
+    def write(self, data: bytes | bytearray | memoryview) -> int:
+        view = memoryview(data).cast("B")
+        done = 0
+        while done < len(view):  # a short write (the limit reached) is followed by the error
+            done += os.write(self._fd, view[done:])
+        self._position += done
+        return done
+
+    def tell(self) -> int:
+        return self._position
+
+    def flush(self) -> None:
+        """Nothing is buffered here."""
+
+    def cut(self, size: int) -> None:
+        """Truncate to ``size`` bytes and write on from there (shrinking needs no space)."""
+        os.ftruncate(self._fd, size)
+        os.lseek(self._fd, size, os.SEEK_SET)
+        self._position = size
+
+    def close(self) -> None:
+        os.close(self._fd)
 
 
 def mcap_file_name(directory: Path) -> str:
@@ -103,7 +141,7 @@ class RecordingWriter:
             KEY_VERSION: __version__, KEY_RANGE_CONVENTION: RADIAL,
             KEY_RANGE_ENCODING: range_encoding, **topics.as_custom_data(),
             **{str(k): str(v) for k, v in (custom_data or {}).items()}}
-        self._file: IO[bytes] | None = None
+        self._file: _FileSink | None = None
         self._mcap: McapWriter | None = None
         self._schemas: dict[str, tuple[int, EncoderFunction]] = {}
         self._channels: dict[str, int] = {}
@@ -114,6 +152,10 @@ class RecordingWriter:
         self._mod_freq: float | None = None
         self._stamps: set[int] = set()
         self._metadata_written = 0.0
+        # File length and bookkeeping at the end of the last complete frame: what a failed
+        # write goes back to.
+        self._good_size = 0
+        self._good_state: tuple = ()
 
     # ------------------------------------------------------------------------ lifecycle
 
@@ -127,7 +169,7 @@ class RecordingWriter:
             return self
         self._prepare_directory()
         try:
-            self._file = open(self.mcap_path, "xb")  # closed in close()
+            self._file = _FileSink(self.mcap_path)  # closed in close()
             self._mcap = McapWriter(self._file, chunk_size=self._chunk_size,
                                     compression=_COMPRESSION[self._compression])
             self._mcap.start(profile="ros2", library=_LIBRARY)
@@ -169,10 +211,11 @@ class RecordingWriter:
                 "serialized_metadata": yaml.safe_dump(doc, sort_keys=False),
                 "ROS_DISTRO": metadata.ROS_DISTRO})
             mcap_writer.finish()
-            assert self._file is not None
-            self._file.close()
         except OSError as err:
-            raise RecordingError(f"{self.mcap_path}: cannot finish: {err}") from err
+            raise self._abandon(err, "finishing (summary)") from err
+        assert self._file is not None
+        self._file.close()
+        self._file = None
         self._write_metadata()
 
     def __enter__(self) -> RecordingWriter:
@@ -218,8 +261,8 @@ class RecordingWriter:
         try:
             self._mcap.add_message(channel, log_time=stamp_ns, data=data,
                                    publish_time=stamp_ns, sequence=self._counts.get(topic, 0))
-        except OSError as err:
-            raise RecordingError(f"{self.mcap_path}: write failed: {err}") from err
+        except OSError as err:  # a full chunk is written out here
+            raise self._abandon(err, "write") from err
         new_topic = topic not in self._types
         self._types[topic] = msgtype
         self._counts[topic] = self._counts.get(topic, 0) + 1
@@ -272,8 +315,8 @@ class RecordingWriter:
         if frame.pose is not None:
             self._write_known(names.camera_to_base, msgdefs.FLOAT64_MULTI_ARRAY,
                               convert.matrix_array_dict(frame.pose), stamp)
-        self._stamps.add(stamp)
         self._flush()
+        self._stamps.add(stamp)
         if time.monotonic() - self._metadata_written > _METADATA_REFRESH_S:
             self._write_metadata()  # keeps counts near-current for `ros2 bag info` after a crash
 
@@ -342,11 +385,37 @@ class RecordingWriter:
         return channel
 
     def _flush(self) -> None:
+        if self._mcap is None or self._file is None:
+            return
         try:
-            if self._mcap is not None:
-                self._mcap.flush()  # closes the chunk in progress and flushes the stream
+            self._mcap.flush()  # closes the chunk in progress and writes it out
         except OSError as err:
-            raise RecordingError(f"{self.mcap_path}: flush failed: {err}") from err
+            raise self._abandon(err, "write") from err
+        self._good_size = self._file.tell()
+        self._good_state = (dict(self._types), dict(self._counts), self._start_ns,
+                            self._end_ns)
+
+    def _abandon(self, err: OSError, action: str) -> RecordingError:
+        """After a failed write: cut the file back to the end of its last complete frame,
+        close it and the writer, and say what is kept. Returns the error to raise."""
+        self._mcap = None
+        file, self._file = self._file, None
+        try:
+            if file is not None:
+                file.cut(self._good_size)
+                file.close()
+        except OSError as cut_err:  # the reader still recovers the complete frames
+            _log.warning("%s: cannot cut the failed write off: %s", self.mcap_path, cut_err)
+        if self._good_state:
+            types, counts, self._start_ns, self._end_ns = self._good_state
+            self._types, self._counts = dict(types), dict(counts)
+        try:
+            self._write_metadata()
+        except RecordingError as meta_err:  # the MCAP alone is readable
+            _log.warning("%s", meta_err)
+        reason = err.strerror or str(err)
+        return RecordingError(f"{self.mcap_path}: {action} failed: {reason}; the "
+                              f"{self.frame_count} complete frames written before are kept")
 
     def _metadata_document(self) -> dict[str, Any]:
         topics = [metadata.TopicStats(t, self._types[t], self._counts.get(t, 0))
