@@ -37,9 +37,11 @@ from fuzz_support import (
     flips,
     lie_about,
     lies,
+    paths_of,
     peak_allocation,
     positions,
     read_or_typed_error,
+    replaced,
 )
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
@@ -233,25 +235,6 @@ yaml_scalars = st.one_of(st.none(), st.booleans(), st.integers(-(2**70), 2**70),
 yaml_values = st.recursive(yaml_scalars, lambda inner: st.one_of(
     st.lists(inner, max_size=3), st.dictionaries(st.text(max_size=8), inner, max_size=3)),
     max_leaves=8)
-
-
-def paths_of(node: Any, prefix: tuple[Any, ...] = ()) -> list[tuple[Any, ...]]:
-    """Every key path of a YAML document (dict keys and list indexes)."""
-    out = [prefix]
-    children = node.items() if isinstance(node, dict) else (
-        enumerate(node) if isinstance(node, list) else ())
-    for key, child in children:
-        out += paths_of(child, (*prefix, key))
-    return out
-
-
-def replaced(doc: Any, where: tuple[Any, ...], value: Any) -> Any:
-    """A copy of ``doc`` with the node at ``where`` replaced by ``value``."""
-    if not where:
-        return value
-    copy = dict(doc) if isinstance(doc, dict) else list(doc)
-    copy[where[0]] = replaced(doc[where[0]], where[1:], value)
-    return copy
 
 
 # The custom_data entries the reader interprets.

@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, RecordingError
+from .output import add_output
+from ..npz_file import read_npz
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -24,8 +26,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "or NPZ; writes an .npz with the coefficients and a .json with the fit's "
                     "residuals. Seconds for hundreds of captures.")
     intrinsic.add_argument("captures", type=Path, help="recording directory or .npz")
-    intrinsic.add_argument("-o", "--output", type=Path, required=True,
-                           help="calibration .npz to write")
+    add_output(intrinsic, "calibration .npz to write")
     intrinsic.add_argument("--amplitude-term", choices=("linear", "inverse"), default="linear",
                            help="how amplitude enters the model (default linear)")
     intrinsic.set_defaults(func=run_intrinsic)
@@ -54,12 +55,13 @@ def load_calibration(path: Path):
     """Read a calibration .npz written by ``tof-mpd calibrate intrinsic`` (no pickle)."""
     from ..correction.calibration import IntrinsicCalibration
 
+    if not Path(path).is_file():
+        raise CalibrationError(f"{path}: no such calibration file")
+    arrays = read_npz(Path(path), CalibrationError, "calibration file")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except (OSError, ValueError) as err:
-        raise CalibrationError(f"{path}: not a calibration file: {err}") from err
-    return IntrinsicCalibration.from_arrays(arrays)
+        return IntrinsicCalibration.from_arrays(arrays)
+    except CalibrationError as err:
+        raise CalibrationError(f"{path}: {err}") from err
 
 
 def run_intrinsic(args: argparse.Namespace) -> int:
@@ -94,7 +96,7 @@ def _register_hand_eye(commands: argparse._SubParsersAction) -> None:
                     "a second; --simulate first records a simulated session into RECORDING "
                     "(about 1-2 s per view).")
     hand_eye.add_argument("recording", type=Path, help="calibration recording directory")
-    hand_eye.add_argument("-o", "--output", type=Path, help="also write the JSON here")
+    add_output(hand_eye, "also write the JSON here", required=False)
     hand_eye.add_argument("--simulate", action="store_true",
                           help="first write a simulated calibration recording to RECORDING "
                                "(true hand-eye = default moved by a few mm and ~1 deg)")

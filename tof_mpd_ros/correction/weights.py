@@ -22,7 +22,6 @@ import hashlib
 import json
 import os
 import subprocess
-import zipfile
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +30,7 @@ import torch
 
 from .. import __version__
 from ..errors import TofMpdError, WeightsError
+from ..npz_file import read_npz
 from .calibration import IntrinsicCalibration
 from .encoding import EncodingConfig
 from .networks import BoundaryNets, RangeRecoveryNet
@@ -129,14 +129,8 @@ def _read_arrays(path: Path) -> dict[str, np.ndarray]:
     """Every array of the npz, without pickle; any read failure becomes a WeightsError."""
     if not path.is_file():
         raise WeightsError(f"weights file not found: {path}")
-    try:
-        with np.load(path, allow_pickle=False) as npz:
-            return {k: npz[k] for k in npz.files}
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, KeyError) as err:
-        raise WeightsError(f"{path} is not a readable weights file (expected a {FORMAT} .npz; "
-                           f"truncated or corrupt?): {type(err).__name__}: {err}") from err
-    except Exception as err:  # zlib.error and friends: corrupt compressed data
-        raise WeightsError(f"{path} is corrupt: {type(err).__name__}: {err}") from err
+    return read_npz(path, WeightsError, f"weights file (expected a {FORMAT} .npz; truncated "
+                    "or corrupt?)")
 
 
 def _read_metadata(path: Path, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
@@ -144,7 +138,7 @@ def _read_metadata(path: Path, arrays: dict[str, np.ndarray]) -> dict[str, Any]:
         raise WeightsError(f"{path} has no 'metadata' entry; expected a {FORMAT} file")
     try:
         meta = json.loads(str(arrays.pop("metadata")))
-    except (json.JSONDecodeError, TypeError) as err:
+    except (json.JSONDecodeError, TypeError, RecursionError) as err:  # deep nesting: recursion
         raise WeightsError(f"{path}: metadata is not valid JSON: {err}") from err
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         found = meta.get("format") if isinstance(meta, dict) else type(meta).__name__
@@ -163,14 +157,30 @@ def _sub(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
     return {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
 
 
-def _load_net(path: Path, net: torch.nn.Module, params: dict[str, np.ndarray], name: str) -> None:
-    expected = {k: tuple(v.shape) for k, v in net.state_dict().items()}
+def _net(path: Path, cls: type[RangeRecoveryNet] | type[BoundaryNets], args: tuple[Any, ...],
+         params: dict[str, np.ndarray], name: str) -> torch.nn.Module:
+    """Network ``cls(*args)`` holding ``params``, built only once the file's arrays have the
+    shapes the declared architecture gives and finite values. The shapes are taken from a
+    network on the meta device, which allocates nothing: a declared width of 10^6 would
+    otherwise allocate terabytes before any comparison."""
+    try:
+        with torch.device("meta"):
+            expected = {k: tuple(v.shape) for k, v in cls(*args).state_dict().items()}
+    except (TypeError, ValueError, RuntimeError, TofMpdError) as err:
+        raise WeightsError(f"{path}: {name} architecture {args} cannot be built: "
+                           f"{type(err).__name__}: {err}") from err
     found = {k: tuple(v.shape) for k, v in params.items()}
     if expected != found:
         diff = sorted(set(expected.items()) ^ set(found.items()))
         raise WeightsError(f"{path}: {name} parameters do not match its declared architecture; "
                            f"expected {expected}, found {found} (differences: {diff})")
+    for key, value in params.items():
+        if value.dtype.kind not in "fiu" or not np.isfinite(value).all():
+            raise WeightsError(f"{path}: {name} parameter {key} must hold finite real numbers "
+                               f"(dtype {value.dtype})")
+    net = cls(*args)
     net.load_state_dict({k: torch.from_numpy(np.array(v, np.float32)) for k, v in params.items()})
+    return net
 
 
 def _build(path: Path, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> CorrectionModel:
@@ -179,22 +189,23 @@ def _build(path: Path, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> C
         encoding = EncodingConfig(**meta["encoding"])
         geodesic = GeodesicParams(**meta["geodesic"])
         f_arch, g_arch = arch["range_net"], arch["boundary_nets"]
-        f = RangeRecoveryNet(int(f_arch["n_features"]), tuple(f_arch["hidden"]),
-                             float(f_arch["target_clip_mm"]))
-        g = BoundaryNets(int(g_arch["n_features"]), tuple(g_arch["hidden"]),
-                         int(g_arch["n_heads"]))
+        f_args = (int(f_arch["n_features"]), tuple(f_arch["hidden"]),
+                  float(f_arch["target_clip_mm"]))
+        g_args = (int(g_arch["n_features"]), tuple(g_arch["hidden"]), int(g_arch["n_heads"]))
         calibration = IntrinsicCalibration.from_arrays(_sub(arrays, "calibration/"))
     except (KeyError, TypeError, ValueError, TofMpdError) as err:
         raise WeightsError(f"{path}: malformed metadata or calibration: "
                            f"{type(err).__name__}: {err}") from err
-    _load_net(path, f, _sub(arrays, "range_net/"), "range_net")
-    _load_net(path, g, _sub(arrays, "boundary_nets/"), "boundary_nets")
+    f = _net(path, RangeRecoveryNet, f_args, _sub(arrays, "range_net/"), "range_net")
+    g = _net(path, BoundaryNets, g_args, _sub(arrays, "boundary_nets/"), "boundary_nets")
+    extra, crop = meta.get("extra", {}), meta.get("crop")
+    if not isinstance(extra, dict):
+        raise WeightsError(f"{path}: metadata 'extra' is a {type(extra).__name__}, not an object")
     try:
-        model = CorrectionModel(calibration, encoding, f, g, geodesic, dict(meta.get("extra", {})))
+        model = CorrectionModel(calibration, encoding, f, g, geodesic, dict(extra))
     except TofMpdError as err:
         raise WeightsError(f"{path}: networks do not fit the encoding: {err}") from err
-    crop = meta.get("crop", {})
-    if (crop.get("height"), crop.get("width")) != model.shape:
+    if not isinstance(crop, dict) or (crop.get("height"), crop.get("width")) != model.shape:
         raise WeightsError(f"{path}: metadata crop {crop} disagrees with the calibration's "
                            f"{model.shape[1]}x{model.shape[0]}")
     return model

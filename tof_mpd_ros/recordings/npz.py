@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import logging
 import os
-import zipfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -29,6 +28,7 @@ import numpy as np
 from ..camera import Intrinsics
 from ..errors import InputError, RecordingError
 from ..frame import ToFFrame
+from ..npz_file import read_npz
 from .reader import RecordingReader
 from .topics import TopicNames
 from .writer import DEFAULT_TOPICS, RecordingWriter
@@ -187,18 +187,9 @@ def _read_arrays(path: Path) -> dict[str, np.ndarray]:
     if magic == b"\x93NUMPY":
         raise RecordingError(f"{path}: is a single .npy array, not an .npz archive")
     if magic[:2] != b"PK":
-        # np.load would otherwise try to unpickle it
+        # said plainly here: the zip reader's own message would be cryptic
         raise RecordingError(f"{path}: is not an .npz (zip) file (starts with {magic!r})")
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {k: data[k] for k in data.files}
-    except ValueError as err:
-        problem = ("holds object arrays, which would need pickle (refused)"
-                   if "pickle" in str(err) else f"is not a readable .npz ({err})")
-        raise RecordingError(f"{path}: {problem}") from err
-    except (OSError, EOFError, zipfile.BadZipFile, KeyError) as err:
-        raise RecordingError(f"{path}: is not a readable .npz ({type(err).__name__}: "
-                             f"{err})") from err
+    arrays = read_npz(path, RecordingError)
     missing = [k for k in REQUIRED_KEYS if k not in arrays]
     if missing:
         raise RecordingError(f"{path}: missing key(s) {', '.join(missing)} (has "

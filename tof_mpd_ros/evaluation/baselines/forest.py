@@ -17,6 +17,7 @@ import numpy as np
 from sklearn.ensemble import RandomForestRegressor
 
 from ...errors import InputError, WeightsError
+from ...npz_file import read_npz
 
 _FIELDS = ("left", "right", "feature", "threshold", "value", "offsets")
 
@@ -108,8 +109,40 @@ class ForestArrays:
     @classmethod
     def load(cls, path: str | Path) -> ForestArrays:
         """Read :meth:`save` output; raises :class:`WeightsError` if missing or malformed."""
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                return cls(**{k: z[k] for k in _FIELDS})
-        except (OSError, KeyError, ValueError) as err:
-            raise WeightsError(f"cannot load forest arrays from {path}: {err}") from err
+        path = Path(path)
+        if not path.is_file():
+            raise WeightsError(f"{path}: no such forest arrays file")
+        arrays = read_npz(path, WeightsError, "forest arrays file")
+        missing = [k for k in _FIELDS if k not in arrays]
+        if missing:
+            raise WeightsError(f"{path}: forest arrays missing: {', '.join(missing)}")
+        problem = _forest_problem(*(arrays[k] for k in _FIELDS))
+        if problem:
+            raise WeightsError(f"{path}: not a forest: {problem}")
+        return cls(**{k: arrays[k] for k in _FIELDS})
+
+
+def _forest_problem(left: np.ndarray, right: np.ndarray, feature: np.ndarray,
+                    threshold: np.ndarray, value: np.ndarray, offsets: np.ndarray) -> str:
+    """What keeps these arrays from being a forest :meth:`ForestArrays.predict` can walk ("" if
+    nothing). Children must come after their parent in the same tree (as sklearn numbers them):
+    then every descent ends at a leaf, whatever the file holds."""
+    nodes = (left, right, feature, threshold, value)
+    if any(a.ndim != 1 for a in (*nodes, offsets)) or len({a.size for a in nodes}) != 1:
+        return "arrays must be 1-D, and all but offsets of one length"
+    if any(a.dtype.kind not in "iu" for a in (left, right, feature, offsets)) or any(
+            a.dtype.kind not in "fiu" for a in (threshold, value)):
+        return "left, right, feature and offsets must be integers, threshold and value numbers"
+    n = left.size
+    if offsets.size < 2 or offsets[0] != 0 or offsets[-1] != n or np.any(np.diff(offsets) <= 0):
+        return f"offsets must rise strictly from 0 to the {n} nodes"
+    tree_size = np.repeat(np.diff(offsets), np.diff(offsets))
+    local = np.arange(n) - np.repeat(offsets[:-1], np.diff(offsets))
+    leaf = left == -1
+    inner_ok = ((left > local) & (left < tree_size) & (right > local) & (right < tree_size)
+                & (feature >= 0))
+    if not np.all(leaf | inner_ok):
+        return "a split node's children must follow it within its tree and its feature be >= 0"
+    if not np.all(np.isfinite(value[leaf])):
+        return "leaf values must be finite"
+    return ""
