@@ -60,8 +60,8 @@ def test_calibrate_train_correct_evaluate(files: dict[str, Path],
     history = json.loads((d / "w.json").read_text())["history"]
     assert np.isfinite(history[-1]["loss_range"])
 
-    code, out, _ = run(capsys, "correct", files["test"], d / "corrected.npz", "--weights",
-                       d / "w.npz")
+    code, out, _ = run(capsys, "correct", files["test"], "-o", d / "corrected.npz",
+                       "--weights", d / "w.npz")
     assert code == 0 and out["frames"] == 2
     corrected, raw = load_npz(d / "corrected.npz"), load_npz(files["test"])
     assert corrected[0].range_mm.shape == raw[0].range_mm.shape
@@ -91,7 +91,7 @@ def test_calibrate_train_correct_evaluate(files: dict[str, Path],
 def test_sim_predict_writes_the_same_kind_of_file(files: dict[str, Path],
                                                   capsys: pytest.CaptureFixture[str]) -> None:
     out_path = files["dir"] / "predicted.npz"
-    code, out, _ = run(capsys, "sim", "predict", files["test"], out_path)
+    code, out, _ = run(capsys, "sim", "predict", files["test"], "-o", out_path)
     assert code == 0 and out["frames"] == 2
     real, predicted = load_npz(files["test"]), load_npz(out_path)
     valid = np.isfinite(real[0].range_mm) & np.isfinite(predicted[0].range_mm)
@@ -102,8 +102,8 @@ def test_sim_predict_writes_the_same_kind_of_file(files: dict[str, Path],
 
 def test_errors_are_one_line_and_exit_code_2(files: dict[str, Path],
                                              capsys: pytest.CaptureFixture[str]) -> None:
-    code, _, err = run(capsys, "correct", files["test"], files["dir"] / "x.npz", "--weights",
-                       files["captures"])  # not a weights file
+    code, _, err = run(capsys, "correct", files["test"], "-o", files["dir"] / "x.npz",
+                       "--weights", files["captures"])  # not a weights file
     assert code == 2 and len(err.strip().splitlines()) == 1 and "error" in err
     code, _, err = run(capsys, "evaluate", files["dir"] / "missing.npz", "-o",
                        files["dir"] / "e2")

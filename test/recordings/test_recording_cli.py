@@ -23,7 +23,7 @@ def npz(tmp_path):
 
 def test_import_info_export_round_trips_exactly(tmp_path, npz, capsys):
     rec, out = tmp_path / "rec", tmp_path / "out.npz"
-    assert main(["recording", "import-npz", str(npz), str(rec), "--json"]) == 0
+    assert main(["recording", "import-npz", str(npz), "-o", str(rec), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["frames"] == 4
 
     assert main(["recording", "info", str(rec), "--json"]) == 0
@@ -37,7 +37,7 @@ def test_import_info_export_round_trips_exactly(tmp_path, npz, capsys):
     table = capsys.readouterr().out
     assert "Range convention:  radial" in table and "/tof/camera_info" in table
 
-    assert main(["recording", "export-npz", str(rec), str(out)]) == 0
+    assert main(["recording", "export-npz", str(rec), "-o", str(out)]) == 0
     assert "wrote 4 frames" in capsys.readouterr().out
     a, b = np.load(npz), np.load(out)
     assert sorted(a.files) == sorted(b.files)
@@ -47,10 +47,10 @@ def test_import_info_export_round_trips_exactly(tmp_path, npz, capsys):
 
 def test_16uc1_import_and_refusal_to_overwrite(tmp_path, npz, capsys):
     rec = tmp_path / "rec"
-    assert main(["recording", "import-npz", str(npz), str(rec), "--encoding", "16UC1",
+    assert main(["recording", "import-npz", str(npz), "-o", str(rec), "--encoding", "16UC1",
                  "--compression", "none"]) == 0
     capsys.readouterr()
-    assert main(["recording", "import-npz", str(npz), str(rec)]) == 2
+    assert main(["recording", "import-npz", str(npz), "-o", str(rec)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "refusing to overwrite" in err
 
@@ -62,11 +62,11 @@ def test_corrupt_file_gives_exit_2_and_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert err.startswith("tof-mpd recording: error: ") and "bad.mcap: corrupt MCAP" in err
-    assert main(["recording", "export-npz", str(tmp_path / "missing"),
+    assert main(["recording", "export-npz", str(tmp_path / "missing"), "-o",
                  str(tmp_path / "o.npz")]) == 2
     assert "no such recording" in capsys.readouterr().err
     (tmp_path / "junk.npz").write_bytes(b"junk")
-    assert main(["recording", "import-npz", str(tmp_path / "junk.npz"),
+    assert main(["recording", "import-npz", str(tmp_path / "junk.npz"), "-o",
                  str(tmp_path / "r2")]) == 2
     assert "junk.npz: is not an .npz (zip) file" in capsys.readouterr().err
     assert not (tmp_path / "r2").exists()
@@ -74,17 +74,17 @@ def test_corrupt_file_gives_exit_2_and_one_line(tmp_path, capsys):
 
 def test_corrupt_chunk_fails_export_unless_skipped(tmp_path, npz, capsys):
     rec = tmp_path / "rec"
-    assert main(["recording", "import-npz", str(npz), str(rec), "--compression", "none"]) == 0
+    assert main(["recording", "import-npz", str(npz), "-o", str(rec), "--compression", "none"]) == 0
     mcap = rec / "rec_0.mcap"
     data = bytearray(mcap.read_bytes())
     middle = len(data) // 2
     data[middle:middle + 64] = bytes(range(64))
     mcap.write_bytes(bytes(data))
     capsys.readouterr()
-    assert main(["recording", "export-npz", str(rec), str(tmp_path / "o.npz")]) == 2
+    assert main(["recording", "export-npz", str(rec), "-o", str(tmp_path / "o.npz")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "rec_0.mcap: corrupt chunk at byte" in err
-    assert main(["recording", "export-npz", str(rec), str(tmp_path / "o.npz"), "--skip-bad",
+    assert main(["recording", "export-npz", str(rec), "-o", str(tmp_path / "o.npz"), "--skip-bad",
                  "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["frames"] == 3
 

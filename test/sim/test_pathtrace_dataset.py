@@ -169,7 +169,7 @@ def test_cli_names_the_extra_when_mitsuba_is_missing(tmp_path: Path,
 
     monkeypatch.setattr(pathtrace_render, "load_mitsuba", missing)
     out = tmp_path / "ds"
-    code = main(["sim", "dataset", str(out), "--renderer", "pathtrace", "--train-scenes", "1",
+    code = main(["sim", "dataset", "-o", str(out), "--renderer", "pathtrace", "--train-scenes", "1",
                  "--test-scenes", "0", "--views", "1", "--calibration", "1"])
     err = capsys.readouterr().err
     assert code == 2 and not out.exists()

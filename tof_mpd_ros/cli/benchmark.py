@@ -7,6 +7,8 @@ import argparse
 import json
 from pathlib import Path
 
+from .output import add_output
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     bench = subparsers.add_parser(
@@ -27,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="training recordings / .npz (with references)")
     bench.add_argument("--test", type=Path, nargs="+", required=True, metavar="TEST",
                        help="test recordings / .npz (frames without a reference are skipped)")
-    bench.add_argument("-o", "--output", type=Path, required=True, help="output directory")
+    add_output(bench, "output directory")
     bench.add_argument("--weights", type=Path, help="weights file (default: shipped)")
     bench.add_argument("--quick", action="store_true",
                        help="small grids and forests (the demo's setting)")

@@ -9,8 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import CalibrationError, RecordingError
-from .output import add_output
 from ..npz_file import read_npz
+from .output import add_output
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

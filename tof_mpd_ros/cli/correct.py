@@ -7,6 +7,8 @@ import json
 import time
 from pathlib import Path
 
+from .output import add_output
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     correct = subparsers.add_parser(
@@ -14,9 +16,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Apply calibration -> F -> G -> geodesic filtering to every frame of a "
                     "recording (directory) or NPZ and write the same kind of file with the "
                     "corrected radial range (references, poses and stamps are kept). Tens of "
-                    "milliseconds per 180x140 frame on a CPU.")
+                    "milliseconds per 180x140 frame on a CPU.",
+        epilog="example: tof-mpd correct my_recording/ -o corrected/ --weights weights.npz")
     correct.add_argument("input", type=Path, help="recording directory or .npz")
-    correct.add_argument("output", type=Path, help="output recording directory or .npz")
+    add_output(correct, "output recording directory or .npz", was_positional=True)
     correct.add_argument("--weights", type=Path, help="weights file (default: shipped weights)")
     correct.add_argument("--device", default="cpu", help="torch device (default cpu)")
     correct.add_argument("--overwrite", action="store_true")

@@ -9,6 +9,8 @@ import os
 import time
 from pathlib import Path
 
+from .output import add_output
+
 log = logging.getLogger(__name__)
 
 
@@ -23,8 +25,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "scenes). Writes OUT/report/index.html and OUT/report/results.json and "
                     "prints a summary. "
                     "About 5-15 minutes on 2 cores.")
-    demo.add_argument("-o", "--output", type=Path, default=Path("demo_out"),
-                      help="output directory (default ./demo_out)")
+    add_output(demo, "output directory (default ./demo_out)", default=Path("demo_out"))
     demo.add_argument("--train", action="store_true",
                       help="train F and G on the simulated data instead of using the shipped "
                            "weights (adds a few minutes)")

@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+from .output import add_output
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     evaluate = subparsers.add_parser(
@@ -17,7 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "image. Writes OUT/results.json, PNG plots and OUT/index.html. About 0.1-0.3 "
                     "s per frame.")
     evaluate.add_argument("recordings", type=Path, nargs="+", help="test recordings / .npz")
-    evaluate.add_argument("-o", "--output", type=Path, required=True, help="output directory")
+    add_output(evaluate, "output directory")
     evaluate.add_argument("--weights", type=Path, help="weights file (default: shipped)")
     evaluate.set_defaults(func=run_evaluate)
 

@@ -1,8 +1,10 @@
 """Entry point of ``tof-mpd``.
 
 Every subcommand lives in its own module of this package and exposes
-``register(subparsers) -> None``; the parser it adds sets ``func(args) -> int``. Library errors
-(:class:`~tof_mpd_ros.errors.TofMpdError`) become one line on stderr and exit code 2.
+``register(subparsers) -> None``; the parser it adds sets ``func(args) -> int``. Inputs are
+positional and every written output is ``-o/--output`` (:mod:`.output`). Library errors
+(:class:`~tof_mpd_ros.errors.TofMpdError`) and a command line in the old positional-output form
+become one line on stderr and exit code 2.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import sys
 from collections.abc import Sequence
 
 from ..errors import TofMpdError
+from .output import CliParser, OldOutputForm
 
 # Subcommand modules, in the order ``--help`` lists them. A module that fails to import (for
 # example because an optional dependency is missing) is reported when its command is used.
@@ -24,7 +27,7 @@ SUBCOMMAND_MODULES = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = CliParser(
         prog="tof-mpd",
         description="Remove multipath distortion from ToF range images: simulate, record, "
                     "train, correct, evaluate and diagnose sim-vs-real mismatch.")
@@ -43,7 +46,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        args = parser.parse_args(argv)
+    except OldOutputForm as old:
+        print(old.hint(parser.prog, argv), file=sys.stderr)
+        return 2
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.INFO,
                         format="%(levelname)s %(name)s: %(message)s")
     try:

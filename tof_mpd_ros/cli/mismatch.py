@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import MismatchError
+from .output import add_output
 
 
 def register(subparsers: Any) -> None:
@@ -24,7 +25,8 @@ def register(subparsers: Any) -> None:
                     "rmse_before_mm, rmse_after_mm, localisation), fitted_config.json, PNG "
                     "plots and index.html. Takes about 2-5 min for 6 frames of 96x72 (one-shot, "
                     "two cores; the light transport of each frame's world about half of it), "
-                    "a few minutes for the 160x144 Azure Kinect frame.")
+                    "a few minutes for the 160x144 Azure Kinect frame.",
+        epilog="example: tof-mpd mismatch real.npz -o mismatch_report/")
     p.add_argument("real", help="recording directory, .mcap or .npz with references, or the "
                                 "Azure Kinect sample folder or the ADI ToF folder (plane-fit "
                                 "reference)")
@@ -35,7 +37,7 @@ def register(subparsers: Any) -> None:
                         "changed since the run that wrote --sim-config (default with it)")
     p.add_argument("--mode", type=int, default=3,
                    help="camera mode of an ADI ToF folder (3, long range; 2, short range)")
-    p.add_argument("-o", "--out", required=True, help="output directory (created)")
+    add_output(p, "output directory (created)")
     p.add_argument("--max-effects", type=int, default=2, help="most effects to select (2)")
     p.add_argument("--reference-noise-mm", type=float, default=0.5,
                    help="std of the reference range in mm (0.5, structured light)")
@@ -62,7 +64,7 @@ def register(subparsers: Any) -> None:
                         "with path-traced light transport ([pathtrace] extra)")
     b.add_argument("--merge", nargs="+", metavar="RUN_DIR",
                    help="instead of running: score finished benchmark directories together")
-    b.add_argument("-o", "--out", required=True, help="output directory (created)")
+    add_output(b, "output directory (created)")
     b.set_defaults(func=_benchmark)
 
 
@@ -107,7 +109,7 @@ def _mismatch(args: argparse.Namespace) -> int:
         analysis = analyse(frames, config, max_effects=args.max_effects,
                            reference_noise_mm=args.reference_noise_mm,
                            progress=lambda name: bar.update(1), monitor=monitor)
-    paths = write_report(analysis, args.out)
+    paths = write_report(analysis, args.output)
     summary = {"selected": analysis.selected, "parameters": analysis.parameters,
                "rmse_before_mm": analysis.metrics["rmse_before_mm"],
                "rmse_after_mm": analysis.metrics["rmse_after_mm"],
@@ -123,12 +125,12 @@ def _benchmark(args: argparse.Namespace) -> int:
     from ..mismatch.benchmark import merge_runs, text_table
 
     if args.merge:
-        doc = merge_runs(args.merge, args.out)
+        doc = merge_runs(args.merge, args.output)
         print(text_table(doc["cases"], doc["summary"]))
         print(json.dumps(doc["summary"], indent=2))
         return 0
     with tqdm(total=args.cases, desc="benchmark cases", file=sys.stderr) as bar:
-        doc = run_benchmark(args.cases, args.seed, args.out, n_frames=args.frames,
+        doc = run_benchmark(args.cases, args.seed, args.output, n_frames=args.frames,
                             base=args.base, progress=lambda msg: bar.update(1))
     print(text_table(doc["cases"], doc["summary"]))
     print(json.dumps(doc["summary"], indent=2))

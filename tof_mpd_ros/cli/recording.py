@@ -9,6 +9,7 @@ from typing import Any
 
 from ..recordings import RANGE_ENCODINGS, RecordingReader, export_npz, import_npz
 from ..recordings.reader import RecordingInfo
+from .output import add_output
 
 
 def register(subparsers: Any) -> None:
@@ -35,9 +36,10 @@ def register(subparsers: Any) -> None:
                     "cy mod_freq_hz, [stamp_ns], [pose]) and writes a new rosbag2 MCAP "
                     "recording directory OUT. Refuses to overwrite unless --overwrite. "
                     "Takes about 20-50 ms per 320x240 frame with zstd (less with --compression "
-                    "none).")
+                    "none).",
+        epilog="example: tof-mpd recording import-npz frames.npz -o my_recording/")
     imp.add_argument("npz", help="input .npz")
-    imp.add_argument("out", help="recording directory to create")
+    add_output(imp, "recording directory to create", was_positional=True)
     imp.add_argument("--encoding", choices=RANGE_ENCODINGS, default="64FC1",
                      help="range/reference image encoding (default 64FC1: lossless for "
                           "float32 mm; 32FC1 m and 16UC1 mm are REP 118)")
@@ -52,9 +54,10 @@ def register(subparsers: Any) -> None:
         description="Reads a recording directory or .mcap file and writes its frames (radial "
                     "range in mm, amplitude, reference, intrinsics, stamps, camera-to-base "
                     "poses) to an interchange .npz. Refuses to overwrite unless --overwrite. "
-                    "Takes about 10 ms per 320x240 frame and holds all frames in memory.")
+                    "Takes about 10 ms per 320x240 frame and holds all frames in memory.",
+        epilog="example: tof-mpd recording export-npz my_recording/ -o frames.npz")
     exp.add_argument("recording", help="recording directory or .mcap file")
-    exp.add_argument("out", help="output .npz")
+    add_output(exp, "output .npz", was_positional=True)
     exp.add_argument("--skip-bad", action="store_true",
                      help="drop corrupt chunks and unbuildable frames (counted) instead of "
                           "failing")
@@ -104,18 +107,18 @@ def _size(n: int) -> str:
 
 
 def _import(args: argparse.Namespace) -> int:
-    count = import_npz(args.npz, args.out, range_encoding=args.encoding,
+    count = import_npz(args.npz, args.output, range_encoding=args.encoding,
                        compression=args.compression, overwrite=args.overwrite)
-    _report(args, {"frames": count, "npz": args.npz, "recording": args.out,
-                   "encoding": args.encoding}, f"wrote {count} frames to {args.out}")
+    _report(args, {"frames": count, "npz": args.npz, "recording": str(args.output),
+                   "encoding": args.encoding}, f"wrote {count} frames to {args.output}")
     return 0
 
 
 def _export(args: argparse.Namespace) -> int:
-    count = export_npz(args.recording, args.out, overwrite=args.overwrite,
+    count = export_npz(args.recording, args.output, overwrite=args.overwrite,
                        on_error="skip" if args.skip_bad else "raise")
-    _report(args, {"frames": count, "recording": args.recording, "npz": args.out},
-            f"wrote {count} frames to {args.out}")
+    _report(args, {"frames": count, "recording": args.recording, "npz": str(args.output)},
+            f"wrote {count} frames to {args.output}")
     return 0
 
 

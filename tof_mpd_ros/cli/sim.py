@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 from ..errors import InputError, SimulationError
+from .output import add_output
 
 #: the one-line error when ``--renderer pathtrace`` cannot load the path tracer
 PATHTRACE_MISSING = ("--renderer pathtrace needs the optional path tracer: pip install "
@@ -31,8 +32,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "--renderer pathtrace renders the light transport with Mitsuba 3 "
                     "(optional extra [pathtrace]; objects may then be glossy, metal or "
                     "translucent) and applies the same camera modules on top; several seconds "
-                    "per frame (docs/physics.md, Path-traced datasets).")
-    dataset.add_argument("out", type=Path, help="output directory (must not exist)")
+                    "per frame (docs/physics.md, Path-traced datasets).",
+        epilog="example: tof-mpd sim dataset -o data/ --small")
+    add_output(dataset, "output directory (must not exist)", was_positional=True)
     dataset.add_argument("--small", action="store_true",
                          help="4 train + 2 test scenes x 6 views, 120 captures")
     dataset.add_argument("--train-scenes", type=int, help="train scenes (default 30)")
@@ -58,9 +60,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "Light transport runs over the reference's surfaces, the support plane "
                     "extended across the light's cone and, for frames with poses, the surfaces "
                     "that other views of the same scene saw (--fuse-views). About 1-3 s per "
-                    "180x140 frame.")
+                    "180x140 frame.",
+        epilog="example: tof-mpd sim predict real.npz -o predicted.npz")
     predict.add_argument("input", type=Path, help="recording directory or .npz with references")
-    predict.add_argument("output", type=Path, help="output recording directory or .npz")
+    add_output(predict, "output recording directory or .npz", was_positional=True)
     predict.add_argument("--sim-config", type=Path,
                          help="simulator configuration JSON (ToFConfig.to_dict); default nominal")
     predict.add_argument("--albedo", type=float, default=None,
@@ -107,11 +110,11 @@ def _cell(args: argparse.Namespace):
 def run_dataset(args: argparse.Namespace) -> int:
     from ..sim.dataset import generate_dataset
 
-    if args.out.exists():
-        raise InputError(f"{args.out} already exists; choose a new directory")
+    if args.output.exists():
+        raise InputError(f"{args.output} already exists; choose a new directory")
     spec = _spec(args)
-    summary = generate_dataset(args.out, spec, workers=args.workers, cell=_cell(args))
-    print(json.dumps({"out": str(args.out), "renderer": summary["renderer"]["name"],
+    summary = generate_dataset(args.output, spec, workers=args.workers, cell=_cell(args))
+    print(json.dumps({"out": str(args.output), "renderer": summary["renderer"]["name"],
                       "frames": summary["frames"], "seconds": summary["seconds"]}))
     return 0
 

@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+from .output import add_output
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     train = subparsers.add_parser(
@@ -19,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "data takes tens of minutes on 2 cores; --epochs and "
                     "--max-samples-per-frame shorten it. Resumable with --checkpoint-dir.")
     train.add_argument("recordings", type=Path, nargs="+", help="training recordings / .npz")
-    train.add_argument("-o", "--output", type=Path, required=True, help="weights .npz to write")
+    add_output(train, "weights .npz to write")
     source = train.add_mutually_exclusive_group(required=True)
     source.add_argument("--calibration", type=Path, help="calibration .npz")
     source.add_argument("--calibration-captures", type=Path,
