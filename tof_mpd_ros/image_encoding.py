@@ -42,8 +42,9 @@ def image_to_array(encoding: str, height: int, width: int, step: int, is_bigendi
                          f"{sorted(PIXEL_FORMATS)}")
     dtype, channels = PIXEL_FORMATS[encoding]
     row_bytes = width * channels * dtype.itemsize
-    buffer = np.frombuffer(memoryview(data).cast("B") if not isinstance(data, np.ndarray)
-                           else data.astype(np.uint8, copy=False).tobytes(), dtype=np.uint8)
+    # The payload's bytes, whatever holds them (an ndarray of another dtype is not value-cast)
+    raw = np.ascontiguousarray(data).reshape(-1) if isinstance(data, np.ndarray) else data
+    buffer = np.frombuffer(memoryview(raw).cast("B"), dtype=np.uint8)
     if height <= 0 or width <= 0:
         raise InputError(f"image has an empty size {width}x{height}")
     if step < row_bytes or buffer.size != height * step:
