@@ -138,7 +138,11 @@ def _score_case(label: dict[str, Any], result: dict[str, Any],
     if camera is not None:
         facts = result.get("camera_profile", {}).get("facts", {})
         row["amplitude_scale_truth"] = camera["amplitude_scale"]
-        row["amplitude_scale_fit"] = facts.get("amplitude_scale")
+        # the tool's best estimate: the grey world's, corrected by the albedo the
+        # interreflection shows when the profile holds it
+        row["amplitude_scale_fit"] = facts.get("amplitude_scale_from_interreflection",
+                                               facts.get("amplitude_scale"))
+        row["amplitude_scale_grey_world"] = facts.get("amplitude_scale")
     return row
 
 
