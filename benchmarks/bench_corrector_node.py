@@ -94,7 +94,7 @@ def run_publisher(rate: float, seconds: float, warmup_s: float) -> None:
     qos = qos_profile_sensor_data
     pubs = (node.create_publisher(Image, "/tof/depth/image_raw", qos),
             node.create_publisher(Image, "/tof/amplitude/image_raw", qos),
-            node.create_publisher(CameraInfo, "/tof/camera_info", qos))
+            node.create_publisher(CameraInfo, "/tof/depth/camera_info", qos))
     msgs = (image_message(depth_m, "32FC1", "tof_optical_frame"),
             image_message(amplitude, "32FC1", "tof_optical_frame"),
             camera_info_message(k, "tof_optical_frame"))
@@ -145,7 +145,7 @@ def measure(rate: float, args: argparse.Namespace, weights: Path, log_dir: str) 
     corrector = subprocess.Popen(
         [sys.executable, "-m", "tof_mpd_ros.nodes.corrector", "--ros-args",
          "-p", f"weights_path:={weights}", "-p", "diagnostics_period_s:=0.5",
-         "-p", f"threads:={args.threads}"],
+         "-p", f"threads:={args.threads}", "-r", "__ns:=/tof"],  # its topics are relative
         env=env, stdout=log, stderr=subprocess.STDOUT)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=args.domain_id)

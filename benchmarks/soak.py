@@ -61,7 +61,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 OUTPUT = "/tof/depth_corrected/image"
-CAMERA_INFO = "/tof/camera_info"
+CAMERA_INFO = "/tof/depth/camera_info"
 DIAGNOSTICS_NAME = "tof_mpd_ros: corrector"
 # An output arriving this long after its row ended is counted as lost, so a row can be printed.
 GRACE_S = 5.0
@@ -292,12 +292,14 @@ def read_rss(pid: int) -> float | None:
 
 
 def start_node(executable: str, params: dict[str, object], env: dict[str, str],
-               log_path: Path) -> subprocess.Popen:
+               log_path: Path, namespace: str = "") -> subprocess.Popen:
     """``python -m tof_mpd_ros.nodes.<executable> --ros-args -p k:=v ...`` (as the node tests
     start them: no ros2 CLI needed), stdout and stderr to ``log_path``."""
     args = [sys.executable, "-m", f"tof_mpd_ros.nodes.{executable}", "--ros-args"]
     for key, value in params.items():
         args += ["-p", f"{key}:={value}"]
+    if namespace:
+        args += ["-r", f"__ns:={namespace}"]
     with open(log_path, "w") as log:  # the child keeps its own descriptor
         return subprocess.Popen(args, env=env, stdout=log, stderr=subprocess.STDOUT)
 
@@ -330,7 +332,8 @@ def run(args: argparse.Namespace, log_dir: Path
     env.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(args.domain_id),
                ROS_LOG_DIR=str(log_dir),
                PYTHONPATH=str(REPO) + os.pathsep + env.get("PYTHONPATH", ""))
-    corrector = start_node("corrector", {}, env, log_dir / "corrector.log")
+    # As sim_demo.launch.py: the corrector's relative topics in /tof meet sim_cell's.
+    corrector = start_node("corrector", {}, env, log_dir / "corrector.log", namespace="/tof")
     sim = start_node("sim_cell", {"rate_hz": args.rate}, env, log_dir / "sim_cell.log")
     procs = {"corrector": corrector, "sim_cell": sim}
     samples = Samples()

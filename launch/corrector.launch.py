@@ -1,6 +1,11 @@
 """Run the corrector on a ToF camera's depth + amplitude topics.
 
-    ros2 launch tof_mpd_ros corrector.launch.py depth_topic:=/camera/depth/image_raw
+    ros2 launch tof_mpd_ros corrector.launch.py namespace:=camera \
+        depth:=/camera/depth/image_rect amplitude:=/camera/ir/image_raw
+
+The node's topics are relative (depth/image_raw, amplitude/image_raw, depth/camera_info in;
+depth_corrected/image, ... out), so they follow `namespace`; the three input arguments are
+remappings of its inputs (default: themselves, inside the namespace).
 """
 
 import os
@@ -15,18 +20,19 @@ from launch_ros.actions import Node
 def generate_launch_description():
     params = os.path.join(get_package_share_directory("tof_mpd_ros"), "config", "corrector.yaml")
     return LaunchDescription([
-        DeclareLaunchArgument("depth_topic", default_value="/tof/depth/image_raw"),
-        DeclareLaunchArgument("amplitude_topic", default_value="/tof/amplitude/image_raw"),
-        DeclareLaunchArgument("camera_info_topic", default_value="/tof/camera_info"),
+        DeclareLaunchArgument("namespace", default_value="tof"),
+        DeclareLaunchArgument("depth", default_value="depth/image_raw"),
+        DeclareLaunchArgument("amplitude", default_value="amplitude/image_raw"),
+        DeclareLaunchArgument("camera_info", default_value="depth/camera_info"),
         Node(
             package="tof_mpd_ros",
             executable="corrector",
             name="corrector",
-            parameters=[params, {
-                "depth_topic": LaunchConfiguration("depth_topic"),
-                "amplitude_topic": LaunchConfiguration("amplitude_topic"),
-                "camera_info_topic": LaunchConfiguration("camera_info_topic"),
-            }],
+            namespace=LaunchConfiguration("namespace"),
+            parameters=[params],
+            remappings=[("depth/image_raw", LaunchConfiguration("depth")),
+                        ("amplitude/image_raw", LaunchConfiguration("amplitude")),
+                        ("depth/camera_info", LaunchConfiguration("camera_info"))],
             output="screen",
         ),
     ])

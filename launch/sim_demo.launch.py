@@ -20,6 +20,8 @@ def generate_launch_description():
              parameters=[os.path.join(config, "sim_cell.yaml"),
                          {"rate_hz": LaunchConfiguration("rate_hz")}],
              output="screen"),
-        Node(package="tof_mpd_ros", executable="corrector", name="corrector",
+        # sim_cell publishes /tof/depth/image_raw, ... (relative names in the root namespace);
+        # the corrector's relative inputs meet them in namespace tof.
+        Node(package="tof_mpd_ros", executable="corrector", name="corrector", namespace="tof",
              parameters=[os.path.join(config, "corrector.yaml")], output="screen"),
     ])

@@ -8,7 +8,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
@@ -35,8 +35,9 @@ def node_env(domain_id: int) -> dict[str, str]:
 
 def start_node(executable: str, params: dict[str, object], domain_id: int,
                log_path: Path, *, script: Path | None = None,
-               preexec_fn: Callable[[], None] | None = None) -> subprocess.Popen:
-    """``python -m tof_mpd_ros.nodes.<executable> --ros-args -p k:=v ...``.
+               preexec_fn: Callable[[], None] | None = None,
+               remap: Sequence[str] = ()) -> subprocess.Popen:
+    """``python -m tof_mpd_ros.nodes.<executable> --ros-args -p k:=v ... -r from:=to ...``.
 
     With ``script``, ``python <script> --ros-args ...`` instead (a node with injected faults);
     ``preexec_fn`` runs in the child before it starts (e.g. a resource limit).
@@ -46,6 +47,8 @@ def start_node(executable: str, params: dict[str, object], domain_id: int,
     for key, value in params.items():
         text = str(value).lower() if isinstance(value, bool) else str(value)
         args += ["-p", f"{key}:={text}"]
+    for rule in remap:  # remapping rules, "__ns:=/tof" or "from:=to"
+        args += ["-r", rule]
     with open(log_path, "w") as log:  # the child keeps its own descriptor
         return subprocess.Popen(args, env=node_env(domain_id), stdout=log,
                                 stderr=subprocess.STDOUT, preexec_fn=preexec_fn)

@@ -249,7 +249,8 @@ def test_undecodable_images_skip_the_view_and_the_collector_exits_non_zero(
         colour = Image(height=h, width=w, encoding="rgb8", step=3 * w, data=rgb.tobytes())
         messages = {"/tof/depth/image_raw": colour,
                     "/tof/amplitude/image_raw": image_message(plane, "32FC1"),
-                    "/tof/camera_info": camera_info_message(Intrinsics.from_fov(w, h, 60.0), ""),
+                    "/tof/depth/camera_info": camera_info_message(
+                        Intrinsics.from_fov(w, h, 60.0), ""),
                     "/sl/depth/image_raw": image_message(plane, "32FC1")}
         publishers = {topic: node.create_publisher(type(msg), topic, qos_profile_sensor_data)
                       for topic, msg in messages.items()}

@@ -107,7 +107,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FaultRig]:
     process = start_node("corrector", {"weights_path": str(save_weights(out / "small.npz", model)),
                                        "diagnostics_period_s": 0.25, "queue_size": 2,
                                        "input_reliability": "reliable", "input_depth": 1000},
-                         DOMAIN, log, script=FAULTY_CORRECTOR)
+                         DOMAIN, log, script=FAULTY_CORRECTOR, remap=["__ns:=/tof"])
     try:
         with listener(DOMAIN) as lis:
             node = lis.node
@@ -117,7 +117,7 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[FaultRig]:
             r = FaultRig(lis, process, log,
                          node.create_publisher(Image, "/tof/depth/image_raw", RELIABLE),
                          node.create_publisher(Image, "/tof/amplitude/image_raw", RELIABLE),
-                         node.create_publisher(CameraInfo, "/tof/camera_info", RELIABLE),
+                         node.create_publisher(CameraInfo, "/tof/depth/camera_info", RELIABLE),
                          outputs)
             wait_for_corrector(lis, process, log)
             assert lis.spin_until(lambda: all(p.get_subscription_count() >= 1

@@ -56,6 +56,7 @@ from tof_mpd_ros.nodes.ros_messages import (  # noqa: E402
 )
 
 STREAM_DOMAIN, BAD_INPUT_DOMAIN, REAL_DOMAIN, WEIGHTS_DOMAIN = (domain_id(k) for k in (2, 3, 4, 5))
+QOS_DOMAIN = domain_id(11)  # also the remapping test's (one corrector at a time)
 PAPER = (140, 180)  # (H, W) of the paper's crop: the stream test's model and frames
 SMALL = (24, 32)  # (H, W) of the bad-input tests' model and frames
 OUTPUT = "/tof/depth_corrected/image"
@@ -66,7 +67,10 @@ STALL_S = 120.0  # the stream test gives up when no output came back for this lo
 # sim_cell renders the stream test's views on topics of its own (the corrector does not see them).
 SIM_TOPICS = {"depth": (Image, "/sim/depth/image_raw"),
               "amplitude": (Image, "/sim/amplitude/image_raw"),
-              "info": (CameraInfo, "/sim/camera_info")}
+              "info": (CameraInfo, "/sim/depth/camera_info")}
+# sim_cell's (relative) names of those topics, remapped to SIM_TOPICS.
+SIM_CELL_NAMES = {"depth": "tof/depth/image_raw", "amplitude": "tof/amplitude/image_raw",
+                  "info": "tof/depth/camera_info"}
 # Test subscribers: best effort (matches sensor-data publishers) with a deep history, so a
 # busy test process does not lose what it is counting.
 DEEP = QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST,
@@ -128,9 +132,12 @@ def listener(domain_id: int) -> Iterator[Listener]:
         context.try_shutdown()
 
 
-def start_corrector(weights_path: Path, domain_id: int, log: Path, **params: object):
+def start_corrector(weights_path: Path, domain_id: int, log: Path,
+                    remap: tuple[str, ...] = ("__ns:=/tof",), **params: object):
+    """The corrector in namespace /tof (its topics are relative), as the launch files start it."""
     return start_node("corrector", {"weights_path": str(weights_path),
-                                    "diagnostics_period_s": 0.25, **params}, domain_id, log)
+                                    "diagnostics_period_s": 0.25, **params}, domain_id, log,
+                      remap=remap)
 
 
 def wait_for_corrector(lis: Listener, process, log: Path, timeout: float = 300.0) -> None:
@@ -251,13 +258,15 @@ def frame_variants(views: list[tuple[Image, Image, CameraInfo]]
 def test_every_frame_sent_comes_back_corrected_like_the_offline_pipeline(
         weights: dict[str, Path], tmp_path: Path) -> None:
     """This process -> corrector -> this process: STREAM_FRAMES frames at the paper's 180x140
-    crop, each comes back once, equal to the offline pipeline.
+    crop, each comes back once, equal to the offline pipeline, to a default-QoS subscriber
+    (``create_subscription(..., 10)``: reliable, what RViz2 and most user code use) and to a
+    sensor-data one alike, with the node's default output QoS.
 
     sim_cell renders two views; this process sends frames made from them (three depth offsets
     per view, so that neighbouring frames differ), stamped like a 30 Hz camera, but never more
     than IN_FLIGHT ahead of the corrected outputs it has received back. The node runs with
     ``queue_size`` IN_FLIGHT, so its drop-oldest queue never has to drop, however slow or busy
-    the machine, and every hop is reliable (DDS does not lose a frame on a busy host). So the
+    the machine, and the inputs are reliable (DDS does not lose a frame on a busy host). So the
     node must publish every frame, exactly once, with its header, equal to
     ``DepthStreamCorrector`` run offline on the same input, and count no drop. Whether it keeps
     up with 30 Hz is measured by benchmarks/bench_corrector_node.py, not here.
@@ -265,32 +274,33 @@ def test_every_frame_sent_comes_back_corrected_like_the_offline_pipeline(
     h, w = PAPER
     corrector_log, sim_log = tmp_path / "corrector.log", tmp_path / "sim_cell.log"
     corrector = start_corrector(weights["paper"], STREAM_DOMAIN, corrector_log,
-                                queue_size=IN_FLIGHT, input_reliability="reliable",
-                                output_reliability="reliable")
+                                queue_size=IN_FLIGHT, input_reliability="reliable")
     sim = start_node("sim_cell", {"views": 2, "crop_width": w, "crop_height": h,
-                                  "publish_reference": False, "reliability": "reliable",
-                                  "depth_topic": SIM_TOPICS["depth"][1],
-                                  "amplitude_topic": SIM_TOPICS["amplitude"][1],
-                                  "camera_info_topic": SIM_TOPICS["info"][1]},
-                     STREAM_DOMAIN, sim_log)
-    returned: dict[int, list[Image]] = {}
+                                  "publish_reference": False},
+                     STREAM_DOMAIN, sim_log,
+                     remap=[f"{SIM_CELL_NAMES[k]}:={SIM_TOPICS[k][1]}" for k in SIM_TOPICS])
+    returned: dict[int, list[Image]] = {}  # default-QoS subscriber
+    returned_sensor: dict[int, list[Image]] = {}  # sensor-data subscriber
     try:
         with listener(STREAM_DOMAIN) as lis:
             node = lis.node
             inputs = frame_variants(rendered_views(lis, sim, sim_log, 2))
             assert stop_node(sim) == 0, sim_log.read_text()[-3000:]
             node.create_subscription(
-                Image, OUTPUT, lambda m: returned.setdefault(stamp_ns(m), []).append(m),
-                RELIABLE_DEEP)
+                Image, OUTPUT, lambda m: returned.setdefault(stamp_ns(m), []).append(m), 10)
+            node.create_subscription(
+                Image, OUTPUT, lambda m: returned_sensor.setdefault(stamp_ns(m), []).append(m),
+                qos_profile_sensor_data)
             pubs = [node.create_publisher(kind, topic, RELIABLE_DEEP) for kind, topic in
                     ((Image, "/tof/depth/image_raw"), (Image, "/tof/amplitude/image_raw"),
-                     (CameraInfo, "/tof/camera_info"))]
+                     (CameraInfo, "/tof/depth/camera_info"))]
             wait_for_corrector(lis, corrector, corrector_log)
             assert lis.spin_until(lambda: all(p.get_subscription_count() >= 1 for p in pubs),
                                   120.0)
             # Warm-up: until a frame has made the round trip (discovery is done both ways).
-            warm = first_round_trip(lis, pubs, inputs[0], lambda t: t in returned, corrector,
-                                    corrector_log)
+            warm = first_round_trip(lis, pubs, inputs[0],
+                                    lambda t: t in returned and t in returned_sensor,
+                                    corrector, corrector_log)
 
             # The stream: frame i is input i % 6, stamped 1/30 s after frame i - 1.
             t0 = time.time_ns()
@@ -303,7 +313,9 @@ def test_every_frame_sent_comes_back_corrected_like_the_offline_pipeline(
                     n_sent += 1
                     continue
                 lis.executor.spin_once(timeout_sec=0.05)
-                now_back = sum(1 for t in stamps[:n_sent] if t in returned)
+                # Paced by both subscribers: neither history (10, 5) can overflow.
+                now_back = sum(1 for t in stamps[:n_sent]
+                               if t in returned and t in returned_sensor)
                 if now_back > n_back:
                     n_back, last_progress = now_back, time.monotonic()
                 elif time.monotonic() - last_progress > STALL_S or corrector.poll() is not None:
@@ -326,6 +338,9 @@ def test_every_frame_sent_comes_back_corrected_like_the_offline_pipeline(
     assert not lost, (f"{len(lost)} of {STREAM_FRAMES} frames without output (frames "
                       f"{lost[:10]}...; {n_sent} sent); diagnostics {values}; log:\n{log[-3000:]}")
     assert all(len(returned[t]) == 1 for t in stamps), "a frame came back twice"
+    lost_sensor = [i for i, t in enumerate(stamps) if t not in returned_sensor]
+    assert not lost_sensor, f"the sensor-data subscriber missed frames {lost_sensor[:10]}..."
+    assert all(returned_sensor[t][0].data == returned[t][0].data for t in stamps)
     assert set(returned) <= set(stamps) | set(warm), "an output with a stamp never sent"
     assert values["dropped_total"] == "0", str({k: v for k, v in values.items() if v != "0"})
     assert int(values["published"]) == int(values["received_depth"]) == \
@@ -348,6 +363,97 @@ def test_every_frame_sent_comes_back_corrected_like_the_offline_pipeline(
     # Different inputs give different outputs: each frame really was its own input's.
     assert len({bytes(returned[t][0].data) for t in stamps}) == len(inputs)
     assert "Traceback" not in log
+
+
+def test_qos_overrides_parameters_set_the_reliability_of_one_topic(weights: dict[str, Path],
+                                                                    tmp_path: Path) -> None:
+    """The standard ``qos_overrides.<topic>.<publisher|subscription>.reliability`` parameters
+    change that one topic's QoS, as another node sees it; the other topics keep the defaults
+    (reliable outputs, best-effort inputs)."""
+    from rclpy.qos import QoSReliabilityPolicy
+
+    log = tmp_path / "corrector.log"
+    process = start_corrector(weights["small"], QOS_DOMAIN, log, **{
+        f"qos_overrides.{OUTPUT}.publisher.reliability": "best_effort",
+        "qos_overrides./tof/depth/image_raw.subscription.reliability": "reliable"})
+    try:
+        with listener(QOS_DOMAIN) as lis:
+            wait_for_corrector(lis, process, log)
+
+            def reliability(topic: str, publisher: bool) -> list:
+                info = (lis.node.get_publishers_info_by_topic(topic) if publisher
+                        else lis.node.get_subscriptions_info_by_topic(topic))
+                return [i.qos_profile.reliability for i in info if i.node_name == "corrector"]
+
+            edges = OUTPUT.rsplit("/", 1)[0] + "/edges"
+            assert lis.spin_until(lambda: all(
+                reliability(t, pub) for t, pub in ((OUTPUT, True), (edges, True),
+                                                   ("/tof/depth/image_raw", False),
+                                                   ("/tof/amplitude/image_raw", False))), 60.0)
+            assert reliability(OUTPUT, True) == [QoSReliabilityPolicy.BEST_EFFORT]
+            assert reliability(edges, True) == [QoSReliabilityPolicy.RELIABLE]
+            assert reliability("/tof/depth/image_raw", False) == [QoSReliabilityPolicy.RELIABLE]
+            assert reliability("/tof/amplitude/image_raw", False) == [
+                QoSReliabilityPolicy.BEST_EFFORT]
+    finally:
+        code = stop_node(process)
+    assert code == 0, log.read_text()[-3000:]
+
+
+def test_a_namespace_and_a_remapped_input_move_the_topics(weights: dict[str, Path],
+                                                          tmp_path: Path) -> None:
+    """``-r __ns:=/cam -r amplitude/image_raw:=/ir/image``: the node reads /cam/depth/image_raw,
+    /ir/image and /cam/depth/camera_info and publishes /cam/depth_corrected/*, and nothing on
+    its default names."""
+    log = tmp_path / "corrector.log"
+    process = start_corrector(weights["small"], QOS_DOMAIN, log,
+                              remap=("__ns:=/cam", "amplitude/image_raw:=/ir/image"))
+    h, w = SMALL
+    try:
+        with listener(QOS_DOMAIN) as lis:
+            node, qos = lis.node, qos_profile_sensor_data
+            got: dict[str, list[int]] = {"image": [], "camera_info": [], "old": []}
+            node.create_subscription(Image, "/cam/depth_corrected/image",
+                                     lambda m: got["image"].append(stamp_ns(m)), DEEP)
+            node.create_subscription(CameraInfo, "/cam/depth_corrected/camera_info",
+                                     lambda m: got["camera_info"].append(stamp_ns(m)), DEEP)
+            node.create_subscription(Image, OUTPUT, lambda m: got["old"].append(1), DEEP)
+            pubs = [node.create_publisher(Image, "/cam/depth/image_raw", qos),
+                    node.create_publisher(Image, "/ir/image", qos),
+                    node.create_publisher(CameraInfo, "/cam/depth/camera_info", qos)]
+            wait_for_corrector(lis, process, log)
+            assert lis.spin_until(lambda: all(p.get_subscription_count() >= 1 for p in pubs),
+                                  120.0), node.get_topic_names_and_types()
+            u = np.mgrid[0:h, 0:w][1]
+            messages = (image_message((0.3 + 0.0005 * u).astype(np.float32), "32FC1"),
+                        image_message((500.0 + 2.0 * u).astype(np.float32), "32FC1"),
+                        camera_info_message(Intrinsics.from_fov(w, h, 60.0), ""))
+            sent = first_round_trip(lis, pubs, messages, lambda t: t in got["image"], process,
+                                    log)
+            assert lis.spin_until(lambda: sent[-1] in got["camera_info"], 60.0)
+            names = dict(node.get_topic_names_and_types())
+            assert "/cam/depth_corrected/edges" in names and "/cam/depth_corrected/confidence" \
+                in names
+            assert got["old"] == [] and not node.get_publishers_info_by_topic(OUTPUT)
+            assert not any(n.startswith("/tof/") for n in names if n != OUTPUT), names
+    finally:
+        code = stop_node(process)
+    assert code == 0, log.read_text()[-3000:]
+
+
+@pytest.mark.parametrize("retired", ["depth_topic", "output_topic"])
+def test_a_retired_topic_parameter_stops_the_node_naming_the_remapping(
+        weights: dict[str, Path], tmp_path: Path, retired: str) -> None:
+    log = tmp_path / "corrector.log"
+    process = start_corrector(weights["small"], WEIGHTS_DOMAIN, log, **{retired: "/x/y"})
+    try:
+        code = process.wait(300)
+    finally:
+        stop_node(process)
+    lines = [line for line in log.read_text().splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1, lines
+    assert lines[0].startswith("corrector: cannot start:") and retired in lines[0]
+    assert ":=/x/y" in lines[0] and "-r " in lines[0], lines
 
 
 # -- 2. bad input: logged, counted, reported; the node keeps running -------------------------
@@ -451,7 +557,8 @@ def rig(weights: dict[str, Path], tmp_path_factory: pytest.TempPathFactory
             r = BadInputRig(lis, process, log,
                             node.create_publisher(Image, "/tof/depth/image_raw", qos),
                             node.create_publisher(Image, "/tof/amplitude/image_raw", qos),
-                            node.create_publisher(CameraInfo, "/tof/camera_info", qos), outputs)
+                            node.create_publisher(CameraInfo, "/tof/depth/camera_info", qos),
+                            outputs)
             wait_for_corrector(lis, process, log)
             assert lis.spin_until(lambda: all(p.get_subscription_count() >= 1
                                               for p in (r.depth, r.amplitude, r.info)), 120)
@@ -569,7 +676,7 @@ def test_output_encoding_can_be_changed_while_running(rig: BadInputRig) -> None:
     from rclpy.parameter import Parameter
     from rclpy.parameter_client import AsyncParameterClient
 
-    client = AsyncParameterClient(rig.lis.node, "corrector")
+    client = AsyncParameterClient(rig.lis.node, "/tof/corrector")  # its namespace: /tof
     assert client.wait_for_services(timeout_sec=120.0)
 
     def set_encoding(value: str):
@@ -677,7 +784,7 @@ def test_real_azure_kinect_frame_comes_out_corrected(weights: dict[str, Path], t
                                          RELIABLE_DEEP)
             pubs = [node.create_publisher(kind, topic, RELIABLE_DEEP) for kind, topic in
                     ((Image, "/tof/depth/image_raw"), (Image, "/tof/amplitude/image_raw"),
-                     (CameraInfo, "/tof/camera_info"))]
+                     (CameraInfo, "/tof/depth/camera_info"))]
             wait_for_corrector(lis, process, log)
             assert lis.spin_until(lambda: all(p.get_subscription_count() >= 1 for p in pubs),
                                   120.0)
@@ -808,7 +915,7 @@ def test_a_signal_mid_stream_stops_the_corrector_cleanly(weights: dict[str, Path
             qos = qos_profile_sensor_data
             publishers = [lis.node.create_publisher(Image, "/tof/depth/image_raw", qos),
                           lis.node.create_publisher(Image, "/tof/amplitude/image_raw", qos),
-                          lis.node.create_publisher(CameraInfo, "/tof/camera_info", qos)]
+                          lis.node.create_publisher(CameraInfo, "/tof/depth/camera_info", qos)]
             wait_for_corrector(lis, process, log)
             deadline = time.monotonic() + 300.0
             signalled = False

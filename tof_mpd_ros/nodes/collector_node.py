@@ -35,7 +35,7 @@ from typing import TypeVar
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.lifecycle import LifecycleNode, State, TransitionCallbackReturn
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from ..arm.isolated import IsolatedArm
@@ -56,8 +56,10 @@ from ..collection.runner import CaptureFunction, RunResult, WriteFunction, run_p
 from ..errors import CaptureError, InputError, TofMpdError
 from ..frame import ToFFrame
 from ..image_encoding import amplitude_to_float, depth_to_mm, image_to_array
+from .cell_topics import CELL_TOPICS, RETIRED_TOPIC_PARAMETERS
 from .parameters import ParameterSpec as P
-from .parameters import declare
+from .parameters import declare, refuse_retired_parameters
+from .qos import overridable_publisher, overridable_subscription, subscription_qos
 from .ros_messages import intrinsics_of, pose_message, stamp_ns
 
 # The node's parameters; config/collector.yaml mirrors these defaults (a test keeps them equal).
@@ -107,17 +109,6 @@ PARAMETERS = (
     P("sync_tolerance_s", 0.005, "Largest stamp difference within one captured set.",
       min_value=0.0, max_value=1.0),
     P("require_reference", True, "Capture only when a structured-light reference arrived.",
-      read_only=True),
-    P("depth_topic", "/tof/depth/image_raw", "ToF depth (z-depth, REP 118).", read_only=True),
-    P("amplitude_topic", "/tof/amplitude/image_raw", "ToF amplitude.", read_only=True),
-    P("camera_info_topic", "/tof/camera_info", "ToF CameraInfo.", read_only=True),
-    P("reference_topic", "/sl/depth/image_raw", "Structured-light reference in the ToF frame "
-      "(z-depth).", read_only=True),
-    P("sl_image_topic", "/sl/image_raw", "SL camera intensity image (plan hand_eye).",
-      read_only=True),
-    P("sl_camera_info_topic", "/sl/camera_info", "SL camera CameraInfo (plan hand_eye).",
-      read_only=True),
-    P("tcp_pose_topic", "/arm/tcp_pose", "Published TCP pose after each move (base frame, m).",
       read_only=True),
     P("autostart", True, "Configure and activate at start-up.", read_only=True),
     P("exit_when_done", True, "Shut down when the plan is finished or the arm failed.",
@@ -257,28 +248,27 @@ def _frame(latest: dict[str, object], camera_to_base_m: np.ndarray | None) -> To
 class CollectorNode(LifecycleNode):
     def __init__(self) -> None:
         super().__init__("collector")
+        refuse_retired_parameters(self, RETIRED_TOPIC_PARAMETERS)
         self.params = declare(self, PARAMETERS)
         p = self.params
         self.hand_eye_m = pose_vector_to_matrix(np.asarray(p["hand_eye"], dtype=np.float64))
         self.calibration = p["plan"] == "hand_eye"
-        topics = [("depth", "depth_topic", Image), ("amplitude", "amplitude_topic", Image),
-                  ("info", "camera_info_topic", CameraInfo)]
+        topics = [("depth", Image), ("amplitude", Image), ("info", CameraInfo)]
         required = ["depth", "amplitude", "info"]
         if self.calibration:
-            topics += [("sl_image", "sl_image_topic", Image),
-                       ("sl_info", "sl_camera_info_topic", CameraInfo)]
+            topics += [("sl_image", Image), ("sl_info", CameraInfo)]
             required += ["sl_image", "sl_info"]
         else:
-            topics.append(("reference", "reference_topic", Image))
+            topics.append(("reference", Image))
             required += ["reference"] if p["require_reference"] else []
         self.capture = TopicCapture(int(p["sync_tolerance_s"] * 1e9), tuple(required))
-        qos = qos_profile_sensor_data
-        for key, topic, kind in topics:
-            self.create_subscription(kind, p[topic], lambda m, k=key: self.capture.put(k, m),
-                                     qos)
+        qos = subscription_qos()
+        for key, kind in topics:
+            overridable_subscription(self, kind, CELL_TOPICS[key],
+                                     lambda m, k=key: self.capture.put(k, m), qos)
         latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self.pub_pose = self.create_publisher(PoseStamped, p["tcp_pose_topic"], latched)
+        self.pub_pose = overridable_publisher(self, PoseStamped, CELL_TOPICS["tcp_pose"], latched)
         self.arm: IsolatedArm | None = None
         self.writer = None
         self.pending: list[PlannedView] = []
@@ -482,7 +472,7 @@ class CollectorNode(LifecycleNode):
         deadline = time.monotonic() + timeout_s
         while self.pub_pose.get_subscription_count() == 0 and not self._stop.is_set():
             if time.monotonic() > deadline:
-                self.get_logger().warn(f"nothing subscribes to {self.params['tcp_pose_topic']} "
+                self.get_logger().warn(f"nothing subscribes to {self.pub_pose.topic_name} "
                                        f"after {timeout_s:.1f} s: frames may not show the "
                                        "simulated arm's pose")
                 return

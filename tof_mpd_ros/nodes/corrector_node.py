@@ -39,12 +39,12 @@ from ..errors import InputError, TofMpdError
 from ..image_encoding import mm_to_depth
 from .pairing import LatestQueueWorker, StampPairer, last_resort_report
 from .parameters import ParameterSpec as P
-from .parameters import declare
+from .parameters import declare, refuse_retired_parameters
+from .qos import overridable_publisher, overridable_subscription, publisher_qos, subscription_qos
 from .ros_messages import (
     cropped_camera_info,
     image_message,
     intrinsics_of,
-    sensor_qos,
     stamp_ns,
 )
 
@@ -52,14 +52,6 @@ from .ros_messages import (
 PARAMETERS = (
     P("weights_path", "", "Correction weights (.npz); empty = the weights shipped with the "
       "package.", read_only=True),
-    P("depth_topic", "/tof/depth/image_raw", "Input depth image (REP 118: 32FC1/64FC1 in m, "
-      "16UC1/mono16 in mm).", read_only=True),
-    P("amplitude_topic", "/tof/amplitude/image_raw", "Input amplitude image, same size.",
-      read_only=True),
-    P("camera_info_topic", "/tof/camera_info", "CameraInfo of the depth image.",
-      read_only=True),
-    P("output_topic", "/tof/depth_corrected/image", "Corrected depth; edges, confidence "
-      "and camera_info are published beside it.", read_only=True),
     P("input_convention", "z", "z: input holds REP 118 z-depth; radial: radial ToF range. "
       "The output follows the input.", choices=("z", "radial"), read_only=True),
     P("output_encoding", "input", "Encoding of the corrected depth: input (same as the "
@@ -67,17 +59,19 @@ PARAMETERS = (
       choices=("input", "32FC1", "16UC1")),
     P("device", "cpu", "Torch device for the networks (cpu, cuda, cuda:0...).",
       read_only=True),
-    P("input_reliability", "best_effort", "QoS reliability of the three input subscriptions: "
-      "best_effort (sensor-data QoS) or reliable (needs reliable publishers; use it for large "
-      "frames, whose fragments best effort may lose).", choices=("best_effort", "reliable"),
+    # Aliases of the standard QoS overrides (docs/nodes.md): they set the profile that
+    # qos_overrides.<topic>.* parameters default to, so old launch files keep working.
+    P("input_reliability", "best_effort", "Alias: default reliability of the three input "
+      "subscriptions (sensor-data QoS: best_effort); qos_overrides.<topic>.subscription."
+      "reliability overrides it per topic.", choices=("best_effort", "reliable"),
       read_only=True),
-    P("output_reliability", "best_effort", "QoS reliability of the four outputs: best_effort "
-      "(sensor-data QoS) or reliable (every message reaches reliable subscribers such as a bag "
-      "recorder; best-effort subscribers are served too).", choices=("best_effort", "reliable"),
-      read_only=True),
-    P("input_depth", 5, "History depth of the three input subscriptions (sensor-data QoS: 5); "
-      "deeper rides out longer stalls of this process at the cost of memory.", min_value=1,
-      max_value=1000, read_only=True),
+    P("output_reliability", "reliable", "Alias: default reliability of the four outputs "
+      "(reliable, like image_pipeline: default-QoS and sensor-data subscribers both match); "
+      "qos_overrides.<topic>.publisher.reliability overrides it per topic.",
+      choices=("best_effort", "reliable"), read_only=True),
+    P("input_depth", 5, "Alias: default history depth of the three input subscriptions "
+      "(sensor-data QoS: 5); qos_overrides.<topic>.subscription.depth overrides it per topic.",
+      min_value=1, max_value=1000, read_only=True),
     P("threads", 1, "CPU threads for the networks (torch) and the geodesic filter (numba); "
       "0 = the libraries' default, one per core. One keeps 30 Hz at 180x140 on a 2-core "
       "machine and leaves the other cores to the rest of the robot's software.",
@@ -89,6 +83,19 @@ PARAMETERS = (
     P("diagnostics_period_s", 1.0, "Period of /diagnostics messages.", min_value=0.05,
       max_value=60.0, read_only=True),
 )
+
+# Topic names, relative like image_pipeline's: users move them with namespaces
+# (``-r __ns:=/tof``) and remapping (``-r depth/image_raw:=/camera/depth``), not parameters.
+TOPICS = {"depth": "depth/image_raw", "amplitude": "amplitude/image_raw",
+          "camera_info": "depth/camera_info", "output": "depth_corrected/image",
+          "edges": "depth_corrected/edges", "confidence": "depth_corrected/confidence",
+          "output_camera_info": "depth_corrected/camera_info"}
+# The topic parameters these names replaced (issue 14): setting one stops the node with the
+# remapping to use instead, rather than being ignored and leaving the node on the wrong topic.
+RETIRED_TOPIC_PARAMETERS = {"depth_topic": TOPICS["depth"],
+                            "amplitude_topic": TOPICS["amplitude"],
+                            "camera_info_topic": TOPICS["camera_info"],
+                            "output_topic": TOPICS["output"]}
 
 # Unmatched images kept per stream while they wait for a partner.
 PAIRING_HISTORY = 8
@@ -204,7 +211,8 @@ class CorrectorStats:
 class CorrectorNode(Node):
     """Subscribes to depth + amplitude + CameraInfo, publishes the corrected depth.
 
-    Publishes, beside ``output_topic`` (``<ns>/image`` -> ``<ns>/edges``, ...): ``edges``
+    Subscribes to ``depth/image_raw``, ``amplitude/image_raw`` and ``depth/camera_info``;
+    publishes ``depth_corrected/image`` and beside it ``edges``
     (mono8, 255 = boundary from G), ``confidence`` (32FC1 in [0, 1]) and ``camera_info`` (the
     crop's), all with the input depth image's header; and ``/diagnostics``.
 
@@ -216,6 +224,7 @@ class CorrectorNode(Node):
 
     def __init__(self) -> None:
         super().__init__("corrector")
+        refuse_retired_parameters(self, RETIRED_TOPIC_PARAMETERS)
         try:
             self.params = declare(self, PARAMETERS)
         except (ValueError, InvalidParameterValueException) as err:
@@ -242,24 +251,29 @@ class CorrectorNode(Node):
             reset_after=RESET_AFTER_OUT_OF_ORDER)
         self.worker: LatestQueueWorker[_Pair] = LatestQueueWorker(
             self._process, maxsize=self.params["queue_size"], on_error=self._worker_error)
-        out = self.params["output_topic"]
-        qos = sensor_qos(self.params["output_reliability"])
-        in_qos = sensor_qos(self.params["input_reliability"], self.params["input_depth"])
-        self.pub_depth = self.create_publisher(Image, out, qos)
-        self.pub_edges = self.create_publisher(Image, _beside(out, "edges"), qos)
-        self.pub_confidence = self.create_publisher(Image, _beside(out, "confidence"), qos)
-        self.pub_info = self.create_publisher(CameraInfo, _beside(out, "camera_info"), qos)
+        qos = publisher_qos(self.params["output_reliability"])
+        in_qos = subscription_qos(self.params["input_reliability"], self.params["input_depth"])
+        self.pub_depth = overridable_publisher(self, Image, TOPICS["output"], qos)
+        self.pub_edges = overridable_publisher(self, Image, TOPICS["edges"], qos)
+        self.pub_confidence = overridable_publisher(self, Image, TOPICS["confidence"], qos)
+        self.pub_info = overridable_publisher(self, CameraInfo, TOPICS["output_camera_info"],
+                                              qos)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.create_subscription(Image, self.params["depth_topic"], self._on_depth, in_qos)
-        self.create_subscription(Image, self.params["amplitude_topic"], self._on_amplitude,
-                                 in_qos)
-        self.create_subscription(CameraInfo, self.params["camera_info_topic"],
-                                 self._on_info, in_qos)
+        subscriptions = {
+            "depth": overridable_subscription(self, Image, TOPICS["depth"], self._on_depth,
+                                              in_qos),
+            "amplitude": overridable_subscription(self, Image, TOPICS["amplitude"],
+                                                  self._on_amplitude, in_qos),
+            "camera_info": overridable_subscription(self, CameraInfo, TOPICS["camera_info"],
+                                                    self._on_info, in_qos)}
+        # Resolved names (namespace and remapping applied), for log and diagnostic messages.
+        self.topics = {k: sub.topic_name for k, sub in subscriptions.items()}
+        out = self.pub_depth.topic_name
         self.add_post_set_parameters_callback(self._on_parameters_set)
         self.create_timer(self.params["diagnostics_period_s"], self._publish_diagnostics)
         h, w = self.model.shape
         self.get_logger().info(
-            f"correcting {self.params['depth_topic']} + {self.params['amplitude_topic']} -> "
+            f"correcting {self.topics['depth']} + {self.topics['amplitude']} -> "
             f"{out} (central {w}x{h} window, {self.params['input_convention']} convention) "
             f"with {weights}; warm-up frame {warm_s * 1e3:.0f} ms")
 
@@ -299,10 +313,10 @@ class CorrectorNode(Node):
         tol_ms = self.params["sync_tolerance_s"] * 1e3
         for _ in range(after[0] - before[0]):
             self._drop("no_amplitude", f"a depth image found no amplitude image on "
-                       f"{self.params['amplitude_topic']} within {tol_ms:g} ms of its stamp")
+                       f"{self.topics['amplitude']} within {tol_ms:g} ms of its stamp")
         for _ in range(after[1] - before[1]):
             self._drop("no_depth", f"an amplitude image found no depth image on "
-                       f"{self.params['depth_topic']} within {tol_ms:g} ms of its stamp")
+                       f"{self.topics['depth']} within {tol_ms:g} ms of its stamp")
         if after[2] > before[2]:
             kind = "depth" if left else "amplitude"
             self._drop("out_of_order", f"{kind} image stamped {_stamp_text(stamp)} is not newer "
@@ -327,7 +341,7 @@ class CorrectorNode(Node):
             info = self._camera_info
         if info is None:
             self._drop("no_camera_info", "no CameraInfo on "
-                       f"{self.params['camera_info_topic']} yet")
+                       f"{self.topics['camera_info']} yet")
             return
         try:
             intrinsics = _intrinsics(info)
@@ -388,8 +402,8 @@ class CorrectorNode(Node):
         depth_age = self.stats.age_s("depth", now)
         if depth_age is None or depth_age > STALE_AFTER_S:
             return ""
-        for stream, topic in (("amplitude", self.params["amplitude_topic"]),
-                              ("camera_info", self.params["camera_info_topic"])):
+        for stream, topic in (("amplitude", self.topics["amplitude"]),
+                              ("camera_info", self.topics["camera_info"])):
             age = self.stats.age_s(stream, now)
             if age is None:
                 return f"depth images arrive but no {stream} was ever received on {topic}"
@@ -413,13 +427,13 @@ class CorrectorNode(Node):
             message = dropped
         elif self.stats.age_s("depth", now) is None:
             level = DiagnosticStatus.WARN
-            message = f"waiting for depth images on {self.params['depth_topic']}"
+            message = f"waiting for depth images on {self.topics['depth']}"
         else:
             level = DiagnosticStatus.OK
             message = (f"correcting at {values['rate_hz']} Hz, latency p99 "
                        f"{values['latency_p99_ms']} ms")
         status = DiagnosticStatus(level=level, name="tof_mpd_ros: corrector",
-                                  hardware_id=self.params["depth_topic"], message=message)
+                                  hardware_id=self.topics["depth"], message=message)
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         msg = DiagnosticArray(status=[status])
         msg.header.stamp = self.get_clock().now().to_msg()
@@ -431,11 +445,6 @@ class CorrectorNode(Node):
         self._stopping.set()
         self.worker.stop(timeout=WORKER_STOP_S, discard=True)
         super().destroy_node()
-
-
-def _beside(topic: str, name: str) -> str:
-    """``/a/b/image`` -> ``/a/b/<name>``; ``image`` -> ``<name>``."""
-    return f"{topic.rsplit('/', 1)[0]}/{name}" if "/" in topic else name
 
 
 def _fields(msg: Image) -> tuple[Any, ...]:

@@ -7,7 +7,7 @@ on-set callback, so ``ros2 param set`` with a bad value is refused with a reason
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -18,6 +18,8 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.node import Node
+
+from ..errors import InputError
 
 
 @dataclass(frozen=True)
@@ -84,3 +86,24 @@ def declare(node: Node, specs: Sequence[ParameterSpec]) -> dict[str, Any]:
         if reason:
             raise ValueError(reason)
     return values
+
+
+def refuse_retired_parameters(node: Node, retired: Mapping[str, str]) -> None:
+    """Stop at start-up if a retired topic parameter is set (``-p``, a params file).
+
+    ``retired`` maps each former parameter to the node's relative topic name it selected. rclpy
+    ignores values for undeclared parameters, so an old launch file would silently leave the
+    node on its default topics; instead the error names the remapping that replaces it.
+
+    Raises:
+        InputError: one of ``retired`` was given a value.
+    """
+    # rclpy keeps the start-up values of every parameter, declared or not, in this mapping;
+    # it has no public accessor for undeclared ones.
+    overrides = getattr(node, "_parameter_overrides", {})
+    for name, topic in retired.items():
+        if name in overrides:
+            value = overrides[name].value
+            raise InputError(f"parameter {name} was removed: remap the topic instead, "
+                             f"--ros-args -r {topic}:={value} (launch: remappings=[("
+                             f"'{topic}', '{value}')])")

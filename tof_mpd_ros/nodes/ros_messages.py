@@ -6,23 +6,12 @@ import array as array_mod
 
 import numpy as np
 from geometry_msgs.msg import Pose
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
 
 from ..camera import Intrinsics
 from ..image_encoding import array_to_image_data
-
-
-def sensor_qos(reliability: str = "best_effort", depth: int = 5) -> QoSProfile:
-    """Sensor-data QoS (keep last ``depth``, volatile) with ``reliability`` ``"best_effort"``
-    (ROS's sensor-data profile) or ``"reliable"`` (a reliable publisher also serves best-effort
-    subscribers; a reliable subscriber only matches reliable publishers)."""
-    return QoSProfile(depth=depth, history=HistoryPolicy.KEEP_LAST,
-                      reliability=ReliabilityPolicy.RELIABLE if reliability == "reliable"
-                      else ReliabilityPolicy.BEST_EFFORT,
-                      durability=DurabilityPolicy.VOLATILE)
 
 
 def stamp_ns(msg) -> int:

@@ -4,16 +4,18 @@ Frames are rendered on a worker thread (a multipath frame takes about a second) 
 a timer at ``rate_hz`` with fresh stamps. Without an arm, the node cycles through frames of a
 viewpoint plan rendered at start-up, once all of them are rendered (it stops as soon as a TCP
 pose publisher is discovered, so no frame from elsewhere is stamped while the arm's first pose is
-on its way); when the arm's TCP pose arrives on ``tcp_pose_topic`` (the collector publishes it
+on its way); when the arm's TCP pose arrives on ``arm/tcp_pose`` (the collector publishes it
 while it drives the simulated or real arm), the node renders from that pose and publishes nothing
 stale in between, so every frame stamped after a pose message was rendered at that pose.
 
 With ``target:=hand_eye_board`` the scene is replaced by the hand-eye calibration board lying
 on the table at ``board_pose`` (:mod:`~tof_mpd_ros.collection.hand_eye_sim`): the ToF frames
 show the board through the full ToF physics (no structured-light reference), and the SL
-camera's intensity image of the board is published on ``sl_image_topic`` with its CameraInfo,
+camera's intensity image of the board is published on ``sl/image_raw`` with its CameraInfo,
 rendered from the SL camera pose (``hand_eye`` then ``sl_to_tof``) with the same stamp. Before
 an arm pose arrives the node cycles through views of the hand-eye plan.
+
+Topics: :data:`~tof_mpd_ros.nodes.cell_topics.CELL_TOPICS` (relative; remap them).
 """
 
 from __future__ import annotations
@@ -39,15 +41,18 @@ from ..sim.poses import invert_pose, pose_m_to_mm
 from ..sim.scene import make_scene
 from ..sim.structured_light import StructuredLightConfig
 from ..sim.viewpoints import ViewpointConfig, plan_viewpoints
+from .cell_topics import CELL_TOPICS, RETIRED_TOPIC_PARAMETERS
 from .parameters import ParameterSpec as P
-from .parameters import declare
-from .ros_messages import camera_info_message, image_message, pose_matrix, sensor_qos
+from .parameters import declare, refuse_retired_parameters
+from .qos import overridable_publisher, publisher_qos
+from .ros_messages import camera_info_message, image_message, pose_matrix
 
 # The node's parameters; config/sim_cell.yaml mirrors these defaults (a test keeps them equal).
 PARAMETERS = (
     P("rate_hz", 30.0, "Publication rate of ToF frames.", min_value=0.1, max_value=200.0),
-    P("reliability", "best_effort", "QoS reliability of every published image and CameraInfo: "
-      "best_effort (sensor-data QoS, like a camera driver) or reliable.",
+    P("reliability", "reliable", "Alias: default QoS reliability of every published image and "
+      "CameraInfo (reliable, like image_pipeline); qos_overrides.<topic>.publisher.reliability "
+      "overrides it per topic.",
       choices=("best_effort", "reliable"), read_only=True),
     P("seed", 0, "Seed of the scene, the plan and the sensor noise.", read_only=True),
     P("split", "test", "Object-library half the scene is drawn from.",
@@ -57,17 +62,9 @@ PARAMETERS = (
     P("views", 3, "Views rendered at start-up (the scene's plan, or the hand-eye plan for "
       "target hand_eye_board) and cycled until an arm appears.", min_value=1, max_value=18,
       read_only=True),
-    P("follow_arm", True, "Render from the TCP pose on tcp_pose_topic when it arrives."),
-    P("tcp_pose_topic", "/arm/tcp_pose", "TCP (flange) pose in the base frame, metres.",
-      read_only=True),
+    P("follow_arm", True, "Render from the TCP pose on arm/tcp_pose when it arrives."),
     P("hand_eye", [0.0, 0.0, 0.06, 0.0, 0.0, 0.0], "Camera pose in the flange frame as a UR "
       "pose vector [x y z rx ry rz] (metres, axis-angle).", read_only=True),
-    P("depth_topic", "/tof/depth/image_raw", "ToF z-depth, 32FC1 metres (REP 118).",
-      read_only=True),
-    P("amplitude_topic", "/tof/amplitude/image_raw", "ToF amplitude, 32FC1.", read_only=True),
-    P("camera_info_topic", "/tof/camera_info", "ToF CameraInfo.", read_only=True),
-    P("reference_topic", "/sl/depth/image_raw", "Fused structured-light reference in the ToF "
-      "frame, z-depth 32FC1 metres (NaN = missing).", read_only=True),
     P("publish_reference", True, "Render and publish the structured-light reference.",
       read_only=True),
     P("crop_width", 180, "Width of the published ToF image.", min_value=8, max_value=296,
@@ -89,10 +86,6 @@ PARAMETERS = (
     P("board_rows", 6, "Squares down the board.", min_value=3, max_value=50, read_only=True),
     P("board_square_mm", 20.0, "Side of a board square, mm.", min_value=1.0, max_value=500.0,
       read_only=True),
-    P("sl_image_topic", "/sl/image_raw", "SL camera intensity image, mono8 (target "
-      "hand_eye_board).", read_only=True),
-    P("sl_camera_info_topic", "/sl/camera_info", "SL camera CameraInfo (target hand_eye_board).",
-      read_only=True),
     P("sl_frame_id", "sl_optical_frame", "frame_id of the SL camera image.", read_only=True),
 )
 
@@ -103,6 +96,7 @@ WORKER_STOP_S = 60.0
 class SimCellNode(Node):
     def __init__(self) -> None:
         super().__init__("sim_cell")
+        refuse_retired_parameters(self, RETIRED_TOPIC_PARAMETERS)
         self.params = declare(self, PARAMETERS)
         p = self.params
         sl_to_tof_m = pose_vector_to_matrix(np.asarray(p["sl_to_tof"], dtype=np.float64))
@@ -131,19 +125,19 @@ class SimCellNode(Node):
             self.cycle_poses = [v.camera_to_base_mm for v in plan.viewpoints[:p["views"]]]
             what = (f"{p['split']} scene {p['scene']} (seed {p['seed']}), "
                     f"{len(self.scene.objects)} objects")
-        qos = sensor_qos(p["reliability"])
+        qos = publisher_qos(p["reliability"])
         self.publishers_by_key = {
-            "depth": self.create_publisher(Image, p["depth_topic"], qos),
-            "amplitude": self.create_publisher(Image, p["amplitude_topic"], qos),
-            "info": self.create_publisher(CameraInfo, p["camera_info_topic"], qos)}
+            "depth": overridable_publisher(self, Image, CELL_TOPICS["depth"], qos),
+            "amplitude": overridable_publisher(self, Image, CELL_TOPICS["amplitude"], qos),
+            "info": overridable_publisher(self, CameraInfo, CELL_TOPICS["info"], qos)}
         if self.board_mode:
-            self.publishers_by_key["sl_image"] = self.create_publisher(
-                Image, p["sl_image_topic"], qos)
-            self.publishers_by_key["sl_info"] = self.create_publisher(
-                CameraInfo, p["sl_camera_info_topic"], qos)
+            self.publishers_by_key["sl_image"] = overridable_publisher(
+                self, Image, CELL_TOPICS["sl_image"], qos)
+            self.publishers_by_key["sl_info"] = overridable_publisher(
+                self, CameraInfo, CELL_TOPICS["sl_info"], qos)
         else:
-            self.publishers_by_key["reference"] = self.create_publisher(
-                Image, p["reference_topic"], qos)
+            self.publishers_by_key["reference"] = overridable_publisher(
+                self, Image, CELL_TOPICS["reference"], qos)
         self._lock = threading.Lock()
         self._cycle: list[dict[str, Image | CameraInfo]] = []
         self._current: dict[str, Image | CameraInfo] | None = None
@@ -155,7 +149,8 @@ class SimCellNode(Node):
         self.frames_rendered = 0
         self.render_failures = 0
         self._cycle_rendered = False
-        self.create_subscription(PoseStamped, p["tcp_pose_topic"], self._on_tcp_pose, 10)
+        self.tcp_pose_topic = self.create_subscription(
+            PoseStamped, CELL_TOPICS["tcp_pose"], self._on_tcp_pose, 10).topic_name
         self._worker = threading.Thread(target=self._render_loop, daemon=True)
         self._worker.start()
         self.create_timer(1.0 / p["rate_hz"], self._publish)
@@ -241,7 +236,7 @@ class SimCellNode(Node):
         try:
             camera_mm = pose_m_to_mm(_valid_pose(msg.pose) @ self.hand_eye_m)
         except ValueError as err:  # an exception here would end the node's executor
-            self.get_logger().warning(f"ignored a TCP pose on {self.params['tcp_pose_topic']}: "
+            self.get_logger().warning(f"ignored a TCP pose on {self.tcp_pose_topic}: "
                                       f"{err}")
             return
         with self._lock:
@@ -275,7 +270,7 @@ class SimCellNode(Node):
     def _arm_present(self) -> bool:
         """Whether this node follows an arm whose pose publisher has been discovered."""
         return bool(self.params["follow_arm"]) and \
-            self.count_publishers(self.params["tcp_pose_topic"]) > 0
+            self.count_publishers(self.tcp_pose_topic) > 0
 
     def destroy_node(self) -> None:
         # The renderer checks _stop between views; one render can take seconds when loaded.
