@@ -300,10 +300,12 @@ class _Search:
     refit: list[str] = field(default_factory=list)
     #: every effect taken so far, in order
     taken: list[str] = field(default_factory=list)
-    #: the amplitude units were chosen by the grey world (one-shot): albedo, hence the
-    #: interreflection's strength, is known only within ``UNITS_DOUBT``
+    #: one-shot: the amplitude units were chosen by the grey world, so albedo, hence the
+    #: interreflection's strength, is known only within ``UNITS_DOUBT``, and the camera's own
+    #: values (its windows) are the profile's
     units_assumed: bool = False
-    #: unit-box limits of profile effects searched in part of their range (the albedo's)
+    #: unit-box limits of profile effects searched in part of their range (the camera's
+    #: windows: the albedo's interreflection, the lens's blur)
     profile_boxes: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
 
     def greedy(self, candidates: Sequence[str], limit: int,
@@ -345,8 +347,10 @@ class _Search:
                          k: int, boxed: Collection[str] = ()) -> FitResult | None:
         """The best significant candidate whose fit the model explains: one fitted at the edge
         of a parameter's range is evidence that the model does not explain the residual, so it
-        is reported (``unexplained``) and never taken on that basis. Nor is a multipath gain
-        the assumed units explain named as physics (the profile's albedo, ``boxed``, is)."""
+        is reported (``unexplained``) and never taken on that basis. Nor, in the one-shot
+        workflow, is a fit inside the camera's own window (a multipath gain the assumed units
+        explain, a focused lens's blur) named as physics; ``boxed`` are the profile's fits of
+        those windows, which are taken."""
         for r in results:
             if not _significant(r, threshold, self.min_t):
                 return None
