@@ -13,10 +13,10 @@ import pytest
 #: ROS domain IDs a test run owns: a block of this many consecutive IDs. The test process's own
 #: (``ROS_DOMAIN_ID``) is the block's first; node tests take theirs with
 #: ``ros_harness.domain_id(offset)``, a fixed offset per test file.
-DOMAINS_PER_RUN = 12
+DOMAINS_PER_RUN = 14
 #: Blocks start at 1 + DOMAINS_PER_RUN * k and stay within 1..88: domain 0 is every ROS user's
 #: default, 91 the corrector benchmark's, and IDs above 101 collide with ephemeral ports on Linux.
-N_BLOCKS = 7
+N_BLOCKS = 6
 
 
 def _claim_domain_block() -> int:
