@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -57,3 +57,20 @@ class ToFFrame:
         if not (self.mod_freq_hz > 0):
             raise InputError(f"mod_freq_hz must be > 0, got {self.mod_freq_hz}")
         self.stamp_ns = int(self.stamp_ns)
+
+    def cropped(self, width: int, height: int) -> ToFFrame:
+        """The central ``width`` x ``height`` window of this frame (the window the corrector
+        node processes, :meth:`Intrinsics.crop_window`): every image cropped, intrinsics of the
+        window, the rest kept.
+
+        Raises:
+            InputError: the window does not fit in the frame.
+        """
+        rows, cols = self.intrinsics.crop_window(width, height)
+
+        def window(image: np.ndarray | None) -> np.ndarray | None:
+            return None if image is None else image[rows, cols].copy()
+
+        return replace(self, range_mm=window(self.range_mm), amplitude=window(self.amplitude),
+                       intrinsics=self.intrinsics.crop(width, height),
+                       reference_mm=window(self.reference_mm), albedo=window(self.albedo))

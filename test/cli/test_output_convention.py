@@ -57,6 +57,11 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     encoding = EncodingConfig(range_min_mm=300.0, range_max_mm=450.0, amplitude_min=0.2,
                               amplitude_max=2.0)
     save_weights(paths["weights"], CorrectionModel.untrained(calibration, encoding, seed=0))
+    paths["adi"] = d / "adi"  # one mode of an Analog Devices folder (docs/real_cameras.md)
+    paths["adi"].mkdir()
+    for name, value, dtype in (("depth", 400, np.uint16), ("amplitude", 100, np.uint16),
+                               ("confidence", 0, np.uint8)):
+        np.save(paths["adi"] / f"{name}_mode3.npy", np.full((H, W), value, dtype))
     return paths
 
 
@@ -65,6 +70,7 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 WRITING = {
     "recording import-npz": "recording import-npz {one}",
     "recording export-npz": "recording export-npz {recording}",
+    "recording import-adi": "recording import-adi {adi}",
     "sim dataset": "sim dataset --train-scenes 1 --test-scenes 0 --views 1 --calibration 1 "
                    "--workers 1",
     "sim predict": "sim predict {one} --fuse-views 0",
@@ -78,7 +84,8 @@ WRITING = {
                  "--methods JBF --examples 1 --no-progress",
 }
 #: commands whose output is one .npz file (a directory otherwise, or a JSON for hand-eye)
-NPZ_OUTPUTS = {"recording export-npz", "sim predict", "calibrate intrinsic", "train", "correct"}
+NPZ_OUTPUTS = {"recording export-npz", "recording import-adi", "sim predict", "calibrate intrinsic",
+               "train", "correct"}
 #: run for minutes even on tiny inputs: their -o/--output is only parsed here
 TOO_SLOW = {"mismatch": "mismatch real.npz", "mismatch-benchmark": "mismatch-benchmark",
             "demo": "demo"}
@@ -124,7 +131,7 @@ def test_every_subcommand_that_writes_has_o_output_and_no_positional_output() ->
 @pytest.mark.parametrize("flag", ["-o", "--output"])
 def test_every_writing_subcommand_parses_o_and_output(command: str, flag: str) -> None:
     line = {**WRITING, **TOO_SLOW}[command].format(**dict.fromkeys(
-        ("tmp", "one", "frames", "recording", "calibration", "weights"), "in"))
+        ("tmp", "one", "frames", "recording", "calibration", "weights", "adi"), "in"))
     args = build_parser().parse_args([*shlex.split(line), flag, "somewhere/out"])
     assert args.output == Path("somewhere/out")
 

@@ -15,8 +15,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "correct", help="correct every frame of a recording or NPZ",
         description="Apply calibration -> F -> G -> geodesic filtering to every frame of a "
                     "recording (directory) or NPZ and write the same kind of file with the "
-                    "corrected radial range (references, poses and stamps are kept). Tens of "
-                    "milliseconds per 180x140 frame on a CPU.",
+                    "corrected radial range (references, poses and stamps are kept). Frames "
+                    "larger than the weights' window (180x140 for the shipped weights) are "
+                    "cropped to its central window, as the corrector node does: the output "
+                    "holds the window, with its intrinsics. Tens of milliseconds per 180x140 "
+                    "frame on a CPU.",
         epilog="example: tof-mpd correct my_recording/ -o corrected/ --weights weights.npz")
     correct.add_argument("input", type=Path, help="recording directory or .npz")
     add_output(correct, "output recording directory or .npz", was_positional=True)
@@ -39,14 +42,24 @@ def run_correct(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..correction.pipeline import correct
+    from ..errors import InputError
     from .frame_files import count_frames, iter_frames, write_frames
 
     model = load_model(args.weights)
+    height, width = model.shape
     seconds: list[float] = []
+    cropped_from: set[tuple[int, int]] = set()
 
     def corrected():
         for frame in tqdm(iter_frames(args.input), total=count_frames(args.input),
                           desc="correcting", unit="frame"):
+            if frame.intrinsics.shape != model.shape:  # the node's central window
+                k = frame.intrinsics
+                if k.width < width or k.height < height:
+                    raise InputError(f"{args.input}: frames are {k.width}x{k.height}, smaller "
+                                     f"than the weights' {width}x{height} window")
+                cropped_from.add(k.shape)
+                frame = frame.cropped(width, height)
             start = time.perf_counter()
             result = correct(model, frame.range_mm, frame.amplitude, device=args.device)
             seconds.append(time.perf_counter() - start)
@@ -55,6 +68,8 @@ def run_correct(args: argparse.Namespace) -> int:
     count = write_frames(args.output, corrected(), overwrite=args.overwrite)
     ms = sorted(1e3 * s for s in seconds)
     summary = {"output": str(args.output), "frames": count,
-               "median_ms_per_frame": ms[len(ms) // 2] if ms else None}
+               "median_ms_per_frame": ms[len(ms) // 2] if ms else None,
+               "window": [width, height],
+               "cropped_from": [[w, h] for h, w in sorted(cropped_from)]}
     print(json.dumps(summary))
     return 0
