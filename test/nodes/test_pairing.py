@@ -106,3 +106,28 @@ def test_invalid_configuration_is_rejected() -> None:
         StampPairer(tolerance_ns=-1)
     with pytest.raises(ValueError):
         LatestQueueWorker(lambda item: None, maxsize=0)
+
+
+def test_worker_queue_resizes_while_running_dropping_the_oldest() -> None:
+    started, release = threading.Event(), threading.Event()
+    seen: list[int] = []
+
+    def slow(item: int) -> None:
+        started.set()
+        assert release.wait(60)
+        seen.append(item)
+
+    worker: LatestQueueWorker[int] = LatestQueueWorker(slow, maxsize=4)
+    worker.submit(0)
+    assert started.wait(60)          # item 0 is being processed; 1..4 wait
+    for i in range(1, 5):
+        worker.submit(i)
+    assert worker.resize(2) == 2 and worker.maxsize == 2   # 1 and 2 go, 3 and 4 stay
+    assert worker.resize(3) == 0
+    worker.submit(5)                 # room for it now: nothing dropped
+    release.set()
+    assert worker.drain(60)
+    worker.stop()
+    assert seen == [0, 3, 4, 5] and worker.dropped == 2
+    with pytest.raises(ValueError):
+        worker.resize(0)

@@ -31,7 +31,7 @@ from ..image_encoding import (
 from ..validation import check_array
 from . import geodesic
 from .edges import edge_map_from_best
-from .pipeline import CorrectionModel, correct
+from .pipeline import CorrectionModel, GeodesicParams, correct
 
 CONVENTIONS = ("z", "radial")
 
@@ -70,9 +70,16 @@ class StreamResult:
         depth_mm: (h, w) float32 corrected depth in mm (z-depth or radial range, like the
             input), NaN = invalid; h, w = the crop.
         edges: (h, w) bool boundary map from G.
-        confidence: (h, w) float32 in [0, 1].
+        confidence: (h, w) float32 in [0, 1], unitless: the probability per G that the pixel is
+            *not* on an object boundary, ``1 - max_k P_edge,k``; 0 on invalid pixels (see
+            :class:`~.pipeline.CorrectionResult`).
         intrinsics: intrinsics of the cropped output images.
         valid_fraction: fraction of input pixels in the crop that were valid.
+        input_mm: (h, w) float32 input depth of the same crop in mm, same convention,
+            NaN where the input is invalid (NaN, inf or <= 0).
+        amplitude: (h, w) float32 input amplitude of the crop, in the input's units (NaN =
+            not finite).
+        convention: ``"z"`` or ``"radial"``, the convention of ``depth_mm`` and ``input_mm``.
     """
 
     depth_mm: np.ndarray
@@ -80,6 +87,47 @@ class StreamResult:
     confidence: np.ndarray
     intrinsics: Intrinsics
     valid_fraction: float
+    input_mm: np.ndarray
+    amplitude: np.ndarray
+    convention: str
+
+
+def points_m(depth_mm: np.ndarray, intrinsics: Intrinsics, convention: str) -> np.ndarray:
+    """3-D points of a depth image, for an organized point cloud.
+
+    Args:
+        depth_mm: (H, W) float depth in mm, z-depth (``convention="z"``) or radial range
+            (``"radial"``); NaN = invalid.
+        intrinsics: intrinsics of this H x W image (e.g. the crop's).
+        convention: ``"z"`` or ``"radial"``.
+
+    Returns:
+        (H, W, 3) float32 x, y, z in metres in the camera's optical frame (REP 103: x right,
+        y down, z forward); all three NaN where ``depth_mm`` is NaN. For z-depth,
+        ``x = (u - cx) z / fx``, ``y = (v - cy) z / fy`` (within float32 rounding).
+
+    Raises:
+        InputError: an unknown convention or a shape other than the intrinsics'.
+    """
+    if convention not in CONVENTIONS:
+        raise InputError(f"convention must be one of {CONVENTIONS}, got {convention!r}")
+    d = check_array("depth_mm", depth_mm, ndim=2, shape=intrinsics.shape, dtype_kind="fiu")
+    range_mm = intrinsics.z_to_radial(d) if convention == "z" else d
+    return (intrinsics.backproject(range_mm) * 1e-3).astype(np.float32)
+
+
+def correction_m(corrected_mm: np.ndarray, input_mm: np.ndarray) -> np.ndarray:
+    """What the correction changed: ``corrected - input``.
+
+    Args:
+        corrected_mm, input_mm: (H, W) float depth in mm, same convention; NaN = invalid.
+
+    Returns:
+        (H, W) float32 in metres, NaN where either is NaN.
+    """
+    c = check_array("corrected_mm", corrected_mm, ndim=2, dtype_kind="fiu")
+    i = check_array("input_mm", input_mm, ndim=2, shape=c.shape, dtype_kind="fiu")
+    return ((c.astype(np.float64) - i) * 1e-3).astype(np.float32)
 
 
 def decode_depth(encoding: str, height: int, width: int, step: int, is_bigendian: bool,
@@ -138,22 +186,25 @@ class DepthStreamCorrector:
             radial ToF range; outputs follow the same convention.
         device: torch device for the networks (``"cpu"`` by default).
         threads: CPU threads for the networks and the geodesic filter; 0 keeps the libraries'
-            defaults (one per core). Sets torch's *process-wide* intra-op thread count; numba's
-            count is per calling thread, so it is set on every :meth:`correct` call. On a
+            defaults (one per core). Sets torch's *process-wide* intra-op thread count and
+            numba's count of the calling thread, on every :meth:`correct` call (so a new
+            corrector built on another thread takes effect on the thread that corrects). On a
             small, busy CPU one thread is faster than spinning OpenMP workers.
+        geodesic: edge thresholds and geodesic filter constants replacing the model's (the
+            weights file's); None keeps the model's.
     """
 
     def __init__(self, model: CorrectionModel, *, input_convention: str = "z",
-                 device: str = "cpu", threads: int = 0) -> None:
+                 device: str = "cpu", threads: int = 0,
+                 geodesic: GeodesicParams | None = None) -> None:
         if input_convention not in CONVENTIONS:
             raise InputError(f"input_convention must be one of {CONVENTIONS}, "
                              f"got {input_convention!r}")
         if threads < 0:
             raise InputError(f"threads must be >= 0, got {threads}")
         self.threads = threads
-        if threads:
-            torch.set_num_threads(threads)
         self.model = model
+        self.geodesic = model.geodesic if geodesic is None else geodesic
         self.input_convention = input_convention
         self.device = device
         self.crop_height, self.crop_width = model.shape
@@ -177,7 +228,7 @@ class DepthStreamCorrector:
         edges[:, w // 2] = True
         holes = depth.copy()
         holes[h // 3, w // 3] = np.nan
-        g = self.model.geodesic
+        g = self.geodesic
         geodesic.geodesic_filter(holes, edges, k=g.k, sigma=g.sigma, step=g.step)
         best = np.where(edges, np.float32(0.9), np.float32(0.1)).astype(np.float32)
         edge_map_from_best(best, np.zeros((h, w), np.int64))
@@ -213,7 +264,8 @@ class DepthStreamCorrector:
         crop_intrinsics = intrinsics.crop(self.crop_width, self.crop_height)
         depth = depth_mm[rows, cols].astype(np.float32)
         amp = amplitude[rows, cols].astype(np.float32)
-        valid = np.isfinite(depth) & (depth > 0) & np.isfinite(amp)
+        measured = np.isfinite(depth) & (depth > 0)
+        valid = measured & np.isfinite(amp)
         if not valid.any():
             raise FrameRejected("no_valid_pixel", f"no valid pixel in the central "
                                 f"{self.crop_width}x{self.crop_height} window (all depth "
@@ -221,13 +273,17 @@ class DepthStreamCorrector:
         range_mm = (crop_intrinsics.z_to_radial(depth) if self.input_convention == "z"
                     else depth)
         if self.threads:
+            if torch.get_num_threads() != self.threads:
+                torch.set_num_threads(self.threads)
             numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
-        result = correct(self.model, range_mm, amp, device=self.device)
+        result = correct(self.model, range_mm, amp, device=self.device, geodesic=self.geodesic)
         out = result.range_mm
         if self.input_convention == "z":
             out = crop_intrinsics.radial_to_z(out)
         return StreamResult(out.astype(np.float32), result.edges, result.confidence,
-                            crop_intrinsics, float(valid.mean()))
+                            crop_intrinsics, float(valid.mean()),
+                            np.where(measured, depth, np.float32(np.nan)), amp,
+                            self.input_convention)
 
 
 def _wxh(shape: tuple[int, ...]) -> str:

@@ -193,6 +193,7 @@ def correct(
     use_boundary: bool = True,
     precision: str = "float32",
     threads: int | None = None,
+    geodesic: GeodesicParams | None = None,
 ) -> CorrectionResult:
     """Remove multipath distortion from one frame or a batch of frames.
 
@@ -208,6 +209,8 @@ def correct(
             a few hundredths of a mm; see :class:`~.networks.FastPatchNets`).
         threads: CPU fast path worker threads (default: torch's thread count, capped by the
             usable CPUs).
+        geodesic: edge thresholds and geodesic filter constants to use instead of
+            ``model.geodesic`` (None: the model's, i.e. the weights file's).
 
     Returns:
         A :class:`CorrectionResult` shaped like the input.
@@ -218,6 +221,7 @@ def correct(
     r, a = check_frame_pair(model.shape, range_mm, amplitude)
     if precision not in ("float32", "bfloat16"):
         raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
+    params = model.geodesic if geodesic is None else geodesic
     single = r.ndim == 2
     r3 = r[None] if single else r
     a3 = (a[None] if single else a).astype(np.float32, copy=False)
@@ -228,15 +232,15 @@ def correct(
                                          *model.boundary_nets.parameters())):
             model.to(dev)
         engine = _engine(model, precision, _worker_count(threads))
-        parts = [engine.correct(calibrated[i], a3[i], use_range_net, use_boundary,
-                                model.geodesic) for i in range(r3.shape[0])]
+        parts = [engine.correct(calibrated[i], a3[i], use_range_net, use_boundary, params)
+                 for i in range(r3.shape[0])]
     else:
         model.to(dev)
         fused = FusedPatchNets(model.range_net, model.boundary_nets, model.encoding.patch_size,
                                model.encoding.n_bins, precision)
         encodings = encode_frame_columns(calibrated, a3, model.encoding, device=dev)
-        parts = [_correct_one(model, fused, enc, calibrated[i], use_range_net, use_boundary)
-                 for i, enc in enumerate(encodings)]
+        parts = [_correct_one(model, fused, enc, calibrated[i], use_range_net, use_boundary,
+                              params) for i, enc in enumerate(encodings)]
     fields = [np.stack(x) for x in zip(*parts, strict=True)]
     result = CorrectionResult(*fields)
     if single:
@@ -401,9 +405,10 @@ def _single_threaded(fn: Any, *args: Any) -> None:
 
 
 def _correct_one(model: CorrectionModel, fused: FusedPatchNets, enc: ColumnEncoding,
-                 calibrated: np.ndarray, use_f: bool, use_g: bool
-                 ) -> tuple[np.ndarray, ...]:
-    """One frame: (range, edges, confidence, calibrated, range_f, valid), each (H, W)."""
+                 calibrated: np.ndarray, use_f: bool, use_g: bool,
+                 geodesic: GeodesicParams | None = None) -> tuple[np.ndarray, ...]:
+    """One frame: (range, edges, confidence, calibrated, range_f, valid), each (H, W); the
+    edge map and filter with ``geodesic`` (None: the model's)."""
     h, w = calibrated.shape
     nan = np.float32(np.nan)
     valid = enc.valid.cpu().numpy()
@@ -420,7 +425,7 @@ def _correct_one(model: CorrectionModel, fused: FusedPatchNets, enc: ColumnEncod
     scores = probs.reshape(-1, h, w).cpu().numpy()                       # (4, H, W)
     scores = np.where(valid, scores, np.float32(0.0)).astype(np.float32)
     confidence = np.where(valid, 1.0 - scores.max(axis=0), 0.0).astype(np.float32)
-    edges, filtered = _filter_one(model.geodesic, range_f, scores)
+    edges, filtered = _filter_one(geodesic or model.geodesic, range_f, scores)
     final = np.where(valid, filtered, nan).astype(np.float32)
     return final, edges, confidence, calib, range_f, valid
 

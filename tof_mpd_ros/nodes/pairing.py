@@ -162,6 +162,25 @@ class LatestQueueWorker(Generic[T]):
             self._cond.notify()
 
     @property
+    def maxsize(self) -> int:
+        """How many items may wait; the oldest is dropped beyond."""
+        return self._maxsize
+
+    def resize(self, maxsize: int) -> int:
+        """Change :attr:`maxsize` while running; returns how many waiting items were dropped
+        (the oldest, when the queue holds more than the new size; also counted in
+        :attr:`dropped`)."""
+        if maxsize < 1:
+            raise ValueError("maxsize must be >= 1")
+        with self._cond:
+            self._maxsize = maxsize
+            n = max(0, len(self._queue) - maxsize)
+            for _ in range(n):
+                self._queue.popleft()
+            self.dropped += n
+            return n
+
+    @property
     def alive(self) -> bool:
         """Whether the worker thread runs (it ends only after :meth:`stop`)."""
         return self._thread.is_alive()
