@@ -8,7 +8,9 @@ benchmark.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -126,3 +128,42 @@ def test_subsurface_without_delay_yields_to_mixed_pixels():
     # with a real delay the richer physics stays (no held-out data: parsimony alone decides,
     # and a 3 % lead with no paired test keeps the simpler one)
     assert rank([delayed, FitResult("mixed_pixels", cfg, {}, 1, score=50.0)])[0] is delayed
+
+
+def _at_one_pose(frames: list) -> list:
+    """The sweep's first frame, held: the camera at the same pose in every frame (new stamps)."""
+    return [dataclasses.replace(frames[0], stamp_ns=f.stamp_ns) for f in frames]
+
+
+def test_camera_moves_needs_a_pose_difference(sweep):
+    from tof_mpd_ros.mismatch.fit import AT_REST_MM, camera_moves
+
+    frames = sweep({})
+    held = _at_one_pose(frames)
+    assert camera_moves([SimpleNamespace(frame=f) for f in frames])
+    assert not camera_moves([SimpleNamespace(frame=f) for f in held])
+    # a shift just under the tolerance is rest, just over it is motion
+    for shift_mm, moves in ((0.9 * AT_REST_MM, False), (1.5 * AT_REST_MM, True)):
+        pose = held[1].pose.copy()
+        pose[2, 3] += shift_mm * 1e-3
+        nudged = [held[0], dataclasses.replace(held[1], pose=pose)]
+        assert camera_moves([SimpleNamespace(frame=f) for f in nudged]) is moves
+    assert not camera_moves([SimpleNamespace(frame=dataclasses.replace(f, pose=None))
+                             for f in frames])
+
+
+def test_hand_eye_is_not_named_at_one_pose(sweep):
+    """A hand–eye error seen from one pose is a constant misregistration of ToF against the
+    reference, which the reference's own registration produces as well: not named. On the
+    moving sweep the same error is fitted, near its true pose."""
+    params = CASES["hand_eye"][0]
+    held = analyse(_at_one_pose(sweep({"hand_eye": params})), candidates=("hand_eye",),
+                   max_effects=1)
+    assert held.selected == []
+    (only,) = held.rounds[-1]
+    assert only.effect == "hand_eye" and "same pose" in only.note
+    moving = analyse(sweep({"hand_eye": params}), candidates=("hand_eye",), max_effects=1)
+    (fitted,) = moving.rounds[-1]
+    assert fitted.note == ""
+    assert abs(fitted.parameters["rx_mrad"] - params["rx_mrad"]) < 2.0
+    assert abs(fitted.parameters["tx_mm"] - params["tx_mm"]) < 1.5

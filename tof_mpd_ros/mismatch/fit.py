@@ -54,6 +54,11 @@ NEUTRAL: dict[str, dict[str, float]] = {
 }
 
 
+#: the camera is at the same pose in every frame when no two poses differ by more than these
+#: (mm, mrad): then a hand–eye error is a constant misregistration of ToF against reference
+AT_REST_MM = 0.5
+AT_REST_MRAD = 1.0
+
 #: a positive range spanning more than this ratio is searched in log space (a time constant
 #: of 5-2000 frames: linear steps could not tell 5 from 25)
 LOG_RANGE_RATIO = 20.0
@@ -258,6 +263,12 @@ def fit_effect(problem: Problem, effect: str, *, max_evals: int = 150,
     k = len(params)
     if effect == "time_offset" and all(p.motion is None for p in problem.predictors):
         return FitResult(effect, base, {}, k, note="camera at rest in every frame")
+    if effect == "hand_eye" and not camera_moves(problem.predictors):
+        # identifying a hand–eye transform needs the arm to move (AX = XB): at one pose its
+        # error is a constant offset of ToF against reference, which the reference's own
+        # registration in the cell produces just as well
+        return FitResult(effect, base, {}, k, note="camera at the same pose in every frame: a "
+                         "hand-eye error cannot be told from the reference's registration")
     if k == 0:
         if base.enabled(effect):
             return FitResult(effect, base, {}, 0, note="already modelled, no free parameter")
@@ -294,6 +305,20 @@ def fit_effect(problem: Problem, effect: str, *, max_evals: int = 150,
     result = FitResult(effect, config, plain_params(config, effect), k,
                        train_gain=float(base_train / n_train - best_c))
     return score_fit(problem, result)
+
+
+def camera_moves(predictors: Sequence[FramePredictor]) -> bool:
+    """Whether the frames' camera poses (4×4, metres) differ by more than ``AT_REST_MM`` /
+    ``AT_REST_MRAD``; frames without a pose do not count."""
+    poses = [np.asarray(p.frame.pose, dtype=np.float64) for p in predictors
+             if p.frame.pose is not None]
+    for a in poses[1:]:
+        moved_mm = 1e3 * np.linalg.norm(a[:3, 3] - poses[0][:3, 3])
+        cos = (np.trace(poses[0][:3, :3].T @ a[:3, :3]) - 1.0) / 2.0
+        turned_mrad = 1e3 * np.arccos(np.clip(cos, -1.0, 1.0))
+        if moved_mm > AT_REST_MM or turned_mrad > AT_REST_MRAD:
+            return True
+    return False
 
 
 def with_level(config: ToFConfig, shift_mm: float) -> ToFConfig:
