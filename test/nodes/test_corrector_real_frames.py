@@ -236,7 +236,7 @@ def test_adi_output_keeps_the_header_and_has_the_windows_camera_info(
 def test_adi_invalid_pixels_stay_invalid_and_valid_ones_valid(adi_run: AdiRun,
                                                                 key: tuple[int, str]) -> None:
     """Valid out exactly where the input window is valid and its amplitude > 0 (the method
-    needs an amplitude: mode 2 reads 0 at 1.3 % of its window's valid pixels). Invalid is 0 in
+    needs an amplitude: mode 2 reads 0 at 1.5 % of its window's valid pixels). Invalid is 0 in
     16UC1, NaN in 32FC1."""
     out, _ = adi_run.output(key)
     depth_in, amplitude_in, _ = adi_run.sent[key]
