@@ -3,8 +3,10 @@
 Subscribes to ToF depth + amplitude images and CameraInfo, pairs them by stamp, corrects each pair
 on a worker thread (bounded drop-oldest queue, so the subscription callbacks never do heavy work)
 and publishes the corrected depth, G's edge map, a confidence image, the cropped CameraInfo and
-``/diagnostics``. Bad input (wrong encoding, size mismatch, all-invalid frames, out-of-order stamps,
-a missing stream) is logged, counted by reason and reported; the node keeps running.
+``/diagnostics``; while subscribed, organized point clouds of the corrected and the input depth
+and the correction image. Parameters (but QoS) change at run time. Bad input (wrong encoding,
+size mismatch, all-invalid frames, out-of-order stamps, a missing stream) is logged, counted by
+reason and reported; the node keeps running.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ from .ros_runtime import node_main
 DESCRIPTION = (
     "Subscribes to ToF depth and amplitude images, removes multipath distortion (calibration, "
     "range-recovery net F, boundary nets G, geodesic filter) and publishes the corrected range "
-    "image, an edge map, a confidence image and /diagnostics."
+    "image, an edge map, a confidence image and /diagnostics; while subscribed, point clouds "
+    "of the corrected and the input depth and the correction image."
 )
 
 

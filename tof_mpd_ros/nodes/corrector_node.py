@@ -3,6 +3,12 @@
 Subscriptions only pair messages and queue them; a worker thread decodes, corrects and publishes
 (bounded drop-oldest queue, every drop counted by reason and reported on ``/diagnostics``).
 
+Every parameter but the QoS ones changes while the node runs. A change that alters the
+correction (weights file, device, convention, threads, edge and geodesic knobs) is built whole in
+the on-set callback, a new weights file loaded and warmed up there, so a bad value is refused with
+its reason and the node keeps the correction it had; the worker picks the new one up between
+frames (it reads :attr:`CorrectorNode.stream` once per frame).
+
 Drop reasons are the keys of :data:`~tof_mpd_ros.correction.depth_stream.DROP_REASONS`. The
 pairing stage (``no_amplitude``, ``no_depth``, ``out_of_order``) counts *images*; every later
 stage counts depth/amplitude *pairs*.
@@ -11,8 +17,10 @@ stage counts depth/amplitude *pairs*.
 from __future__ import annotations
 
 import collections
+import dataclasses
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,7 +30,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.exceptions import InvalidParameterValueException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2
 
 from ..camera import Intrinsics
 from ..correction.default_weights import default_weights_path
@@ -31,9 +39,12 @@ from ..correction.depth_stream import (
     DepthStreamCorrector,
     FrameRejected,
     StreamResult,
+    correction_m,
     decode_amplitude,
     decode_depth,
+    points_m,
 )
+from ..correction.pipeline import CorrectionModel, GeodesicParams
 from ..correction.weights import load_weights
 from ..errors import InputError, TofMpdError
 from ..image_encoding import mm_to_depth
@@ -45,51 +56,83 @@ from .ros_messages import (
     cropped_camera_info,
     image_message,
     intrinsics_of,
+    point_cloud_message,
     stamp_ns,
 )
 
+# Said by every QoS parameter: a live endpoint's QoS cannot change.
+_QOS_READ_ONLY = " Read-only: QoS cannot change on a live endpoint; set it at start-up."
+
 # The node's parameters; config/corrector.yaml mirrors these defaults (a test keeps them equal).
+# All but the QoS ones change at run time (``ros2 param set``).
 PARAMETERS = (
     P("weights_path", "", "Correction weights (.npz); empty = the weights shipped with the "
-      "package.", read_only=True),
+      "package. A new file is loaded and tried when set; one that cannot be is refused and "
+      "the node keeps the weights it has."),
     P("input_convention", "z", "z: input holds REP 118 z-depth; radial: radial ToF range. "
-      "The output follows the input.", choices=("z", "radial"), read_only=True),
+      "The output follows the input.", choices=("z", "radial")),
     P("output_encoding", "input", "Encoding of the corrected depth: input (same as the "
       "input), 32FC1 (metres) or 16UC1 (millimetres).",
       choices=("input", "32FC1", "16UC1")),
-    P("device", "cpu", "Torch device for the networks (cpu, cuda, cuda:0...).",
-      read_only=True),
+    P("device", "cpu", "Torch device for the networks (cpu, cuda, cuda:0...); a device the "
+      "model does not run on is refused."),
     # Aliases of the standard QoS overrides (docs/nodes.md): they set the profile that
     # qos_overrides.<topic>.* parameters default to, so old launch files keep working.
     P("input_reliability", "best_effort", "Alias: default reliability of the three input "
       "subscriptions (sensor-data QoS: best_effort); qos_overrides.<topic>.subscription."
-      "reliability overrides it per topic.", choices=("best_effort", "reliable"),
-      read_only=True),
-    P("output_reliability", "reliable", "Alias: default reliability of the four outputs "
+      "reliability overrides it per topic." + _QOS_READ_ONLY,
+      choices=("best_effort", "reliable"), read_only=True),
+    P("output_reliability", "reliable", "Alias: default reliability of the outputs "
       "(reliable, like image_pipeline: default-QoS and sensor-data subscribers both match); "
-      "qos_overrides.<topic>.publisher.reliability overrides it per topic.",
+      "qos_overrides.<topic>.publisher.reliability overrides it per topic." + _QOS_READ_ONLY,
       choices=("best_effort", "reliable"), read_only=True),
     P("input_depth", 5, "Alias: default history depth of the three input subscriptions "
-      "(sensor-data QoS: 5); qos_overrides.<topic>.subscription.depth overrides it per topic.",
-      min_value=1, max_value=1000, read_only=True),
+      "(sensor-data QoS: 5); qos_overrides.<topic>.subscription.depth overrides it per "
+      "topic." + _QOS_READ_ONLY, min_value=1, max_value=1000, read_only=True),
     P("threads", 1, "CPU threads for the networks (torch) and the geodesic filter (numba); "
       "0 = the libraries' default, one per core. One keeps 30 Hz at 180x140 on a 2-core "
       "machine and leaves the other cores to the rest of the robot's software.",
-      min_value=0, max_value=256, read_only=True),
+      min_value=0, max_value=256),
     P("sync_tolerance_s", 0.005, "Largest stamp difference at which depth and amplitude "
       "pair.", min_value=0.0, max_value=1.0),
-    P("queue_size", 2, "Pairs waiting for the worker; the oldest is dropped when full.",
-      min_value=1, max_value=100, read_only=True),
+    P("queue_size", 2, "Pairs waiting for the worker; the oldest is dropped when full (also "
+      "when the queue is made smaller than it is full).", min_value=1, max_value=100),
     P("diagnostics_period_s", 1.0, "Period of /diagnostics messages.", min_value=0.05,
-      max_value=60.0, read_only=True),
+      max_value=60.0),
+    # The correction's knobs; their defaults stand for the weights file's values, which the
+    # trainer chose on validation frames (the node logs the values in use).
+    P("edge_low", -1.0, "Hysteresis: lower threshold on G's edge probability (0-1); a pixel "
+      "above it is an edge when connected to one above edge_high. Negative = the weights "
+      "file's value (0.3 untrained).", min_value=-1.0, max_value=1.0),
+    P("edge_high", -1.0, "Hysteresis: upper threshold on G's edge probability (0-1, >= "
+      "edge_low); every pixel above it is an edge. Negative = the weights file's value "
+      "(0.6 untrained).", min_value=-1.0, max_value=1.0),
+    P("geodesic_k", 0, "Neighbours K the geodesic filter averages per pixel (the paper's "
+      "81); 0 = the weights file's value.", min_value=0, max_value=1000),
+    P("geodesic_sigma", 0.0, "Bandwidth sigma of the geodesic filter's Gaussian weights, in "
+      "grid steps of the filter (pixels; the paper's 2); 0 = the weights file's value.",
+      min_value=0.0, max_value=100.0),
 )
+# Parameters whose change builds a new correction before it is accepted; the first two load
+# the weights file again (a new model, warmed up on the device before the worker sees it).
+RELOAD_PARAMETERS = ("weights_path", "device")
+REBUILD_PARAMETERS = (*RELOAD_PARAMETERS, "input_convention", "threads", "edge_low",
+                      "edge_high", "geodesic_k", "geodesic_sigma")
 
 # Topic names, relative like image_pipeline's: users move them with namespaces
 # (``-r __ns:=/tof``) and remapping (``-r depth/image_raw:=/camera/depth``), not parameters.
 TOPICS = {"depth": "depth/image_raw", "amplitude": "amplitude/image_raw",
           "camera_info": "depth/camera_info", "output": "depth_corrected/image",
           "edges": "depth_corrected/edges", "confidence": "depth_corrected/confidence",
-          "output_camera_info": "depth_corrected/camera_info"}
+          "output_camera_info": "depth_corrected/camera_info",
+          "points": "depth_corrected/points", "input_points": "depth_corrected/input_points",
+          "correction": "depth_corrected/correction"}
+# What the node publishes, key of TOPICS -> message type (/diagnostics besides).
+PUBLISHED = {"output": Image, "edges": Image, "confidence": Image,
+             "output_camera_info": CameraInfo, "points": PointCloud2,
+             "input_points": PointCloud2, "correction": Image}
+# Outputs computed only while something subscribes to them: the default cost is unchanged.
+ON_DEMAND = ("points", "input_points", "correction")
 # The topic parameters these names replaced (issue 14): setting one stops the node with the
 # remapping to use instead, rather than being ignored and leaving the node on the wrong topic.
 RETIRED_TOPIC_PARAMETERS = {"depth_topic": TOPICS["depth"],
@@ -208,13 +251,32 @@ class CorrectorStats:
         return values, *period
 
 
+@dataclass(frozen=True)
+class _Staged:
+    """A correction built and checked by the on-set callback, waiting for the post-set one."""
+
+    changes: dict[str, Any]  # the rebuilding parameters of that change, name -> value
+    stream: DepthStreamCorrector
+    weights: str
+
+
 class CorrectorNode(Node):
     """Subscribes to depth + amplitude + CameraInfo, publishes the corrected depth.
 
     Subscribes to ``depth/image_raw``, ``amplitude/image_raw`` and ``depth/camera_info``;
-    publishes ``depth_corrected/image`` and beside it ``edges``
-    (mono8, 255 = boundary from G), ``confidence`` (32FC1 in [0, 1]) and ``camera_info`` (the
-    crop's), all with the input depth image's header; and ``/diagnostics``.
+    publishes ``depth_corrected/image`` and beside it ``edges`` (mono8, 255 = boundary from
+    G), ``confidence`` (32FC1, unitless in [0, 1]: the probability per G that the pixel is not
+    on an object boundary, ``1 - max_k P_edge,k``, where mixed pixels and over-smoothing make
+    ToF least reliable; 0 on invalid pixels) and ``camera_info`` (the crop's); while something
+    subscribes to them, ``points`` and ``input_points`` (organized PointCloud2 of the
+    corrected and the input depth of the crop: x, y, z float32 metres in the optical frame,
+    intensity = amplitude, NaN x/y/z for invalid pixels) and ``correction`` (32FC1 metres,
+    corrected - input, NaN where either is invalid). Every output carries the input depth
+    image's header (stamp, frame_id). And ``/diagnostics``.
+
+    Args:
+        **node_options: passed to :class:`rclpy.node.Node` (``context``, ``namespace``,
+            ``parameter_overrides``..., e.g. to run the node inside a test process).
 
     Raises:
         WeightsError: the weights file is missing or unreadable.
@@ -222,24 +284,22 @@ class CorrectorNode(Node):
         (The executable turns these into one line on stderr and exit code 2.)
     """
 
-    def __init__(self) -> None:
-        super().__init__("corrector")
+    def __init__(self, **node_options: Any) -> None:
+        super().__init__("corrector", **node_options)
         refuse_retired_parameters(self, RETIRED_TOPIC_PARAMETERS)
+        self._staged: _Staged | None = None
         try:
-            self.params = declare(self, PARAMETERS)
+            self.params = declare(self, PARAMETERS, check=self._check_change)
         except (ValueError, InvalidParameterValueException) as err:
             raise InputError(f"bad parameter: {err}") from err
-        weights = self.params["weights_path"] or str(default_weights_path())
-        self.model = load_weights(Path(weights))  # WeightsError: refuse to start
-        self.stream = DepthStreamCorrector(self.model,
-                                           input_convention=self.params["input_convention"],
-                                           device=self.params["device"],
-                                           threads=self.params["threads"])
-        try:  # JIT and thread pools now, not on the first frame; a bad device fails here
-            warm_s = self.stream.warm_up()
-        except Exception as err:
-            raise TofMpdError(f"the model does not run on device {self.params['device']!r}: "
-                              f"{type(err).__name__}: {err}") from err
+        self.weights = _weights_text(self.params)
+        model = load_weights(Path(self.weights))  # WeightsError: refuse to start
+        try:
+            stream = _stream_for(model, self.params)
+        except InputError as err:
+            raise InputError(f"bad parameter: {err}") from err
+        warm_s = _warm_up(stream, self.weights)  # a bad device fails here
+        self.stream = stream  # the worker reads it once per frame; replaced whole, never edited
         self.stats = CorrectorStats()
         self._camera_info: CameraInfo | None = None
         self._camera_info_ready = threading.Event()
@@ -253,11 +313,9 @@ class CorrectorNode(Node):
             self._process, maxsize=self.params["queue_size"], on_error=self._worker_error)
         qos = publisher_qos(self.params["output_reliability"])
         in_qos = subscription_qos(self.params["input_reliability"], self.params["input_depth"])
-        self.pub_depth = overridable_publisher(self, Image, TOPICS["output"], qos)
-        self.pub_edges = overridable_publisher(self, Image, TOPICS["edges"], qos)
-        self.pub_confidence = overridable_publisher(self, Image, TOPICS["confidence"], qos)
-        self.pub_info = overridable_publisher(self, CameraInfo, TOPICS["output_camera_info"],
-                                              qos)
+        self.pubs = {key: overridable_publisher(self, kind, TOPICS[key], qos)
+                     for key, kind in PUBLISHED.items()}
+        self.pub_depth = self.pubs["output"]
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         subscriptions = {
             "depth": overridable_subscription(self, Image, TOPICS["depth"], self._on_depth,
@@ -268,24 +326,63 @@ class CorrectorNode(Node):
                                                     self._on_info, in_qos)}
         # Resolved names (namespace and remapping applied), for log and diagnostic messages.
         self.topics = {k: sub.topic_name for k, sub in subscriptions.items()}
-        out = self.pub_depth.topic_name
         self.add_post_set_parameters_callback(self._on_parameters_set)
-        self.create_timer(self.params["diagnostics_period_s"], self._publish_diagnostics)
-        h, w = self.model.shape
+        self._diagnostics_timer = self.create_timer(self.params["diagnostics_period_s"],
+                                                    self._publish_diagnostics)
         self.get_logger().info(
             f"correcting {self.topics['depth']} + {self.topics['amplitude']} -> "
-            f"{out} (central {w}x{h} window, {self.params['input_convention']} convention) "
-            f"with {weights}; warm-up frame {warm_s * 1e3:.0f} ms")
+            f"{self.pub_depth.topic_name} ({_describe(self.stream, self.weights)}); "
+            f"warm-up frame {warm_s * 1e3:.0f} ms")
 
-    # -- callbacks: cheap, never block --------------------------------------------------
+    # -- parameters ---------------------------------------------------------------------
+    def _check_change(self, parameters: list[Parameter]) -> str | None:
+        """On-set check: build the correction a change asks for, or say why it cannot be.
+
+        Runs in the executor thread before the change is accepted. A new weights file or device
+        is loaded and warmed up here; the result waits in ``_staged`` for
+        :meth:`_on_parameters_set`, which swaps it in whole.
+        """
+        self._staged = None
+        changes = _rebuilding(parameters)
+        if not changes:
+            return None
+        values = {**self.params, **changes}
+        weights = _weights_text(values)
+        try:
+            if any(name in changes for name in RELOAD_PARAMETERS):
+                stream = _stream_for(load_weights(Path(weights)), values)
+                _warm_up(stream, weights)
+            else:
+                stream = _stream_for(self.stream.model, values)
+        except Exception as err:  # whatever the cause, refuse the change, never the node
+            why = str(err) if isinstance(err, TofMpdError) else f"{type(err).__name__}: {err}"
+            return f"refused {_assignments(changes)}: {why}; still correcting with {self.weights}"
+        self._staged = _Staged(changes, stream, weights)
+        return None
+
     def _on_parameters_set(self, parameters: list[Parameter]) -> None:
         for p in parameters:
             if p.name in self.params:
                 self.params[p.name] = p.value
-            if p.name == "sync_tolerance_s":
-                with self._pair_lock:
-                    self.pairer.tolerance_ns = round(p.value * 1e9)
+        names = {p.name for p in parameters}
+        staged, self._staged = self._staged, None
+        if staged is not None and staged.changes == _rebuilding(parameters):
+            self.stream, self.weights = staged.stream, staged.weights
+            self.get_logger().info(
+                f"now correcting with {_describe(staged.stream, staged.weights)}")
+        if "sync_tolerance_s" in names:
+            with self._pair_lock:
+                self.pairer.tolerance_ns = round(self.params["sync_tolerance_s"] * 1e9)
+        if "queue_size" in names:
+            for _ in range(self.worker.resize(self.params["queue_size"])):
+                self._drop("queue_full", "queue_size was lowered below the pairs waiting: the "
+                           "oldest were dropped")
+        if "diagnostics_period_s" in names:
+            self._diagnostics_timer.timer_period_ns = round(
+                self.params["diagnostics_period_s"] * 1e9)
+            self._diagnostics_timer.reset()  # the next message one new period from now
 
+    # -- callbacks: cheap, never block --------------------------------------------------
     def _on_info(self, msg: CameraInfo) -> None:
         self.stats.receive("camera_info")
         self._camera_info = msg
@@ -336,6 +433,7 @@ class CorrectorNode(Node):
 
     # -- worker thread ------------------------------------------------------------------
     def _process(self, pair: _Pair) -> None:
+        stream = self.stream  # one correction for the whole frame, whatever a change swaps in
         info = self._camera_info
         if info is None and self._camera_info_ready.wait(CAMERA_INFO_WAIT_S):
             info = self._camera_info
@@ -347,7 +445,7 @@ class CorrectorNode(Node):
             intrinsics = _intrinsics(info)
             depth = decode_depth(*_fields(pair.depth))
             amplitude = decode_amplitude(*_fields(pair.amplitude))
-            result = self.stream.correct(depth, amplitude, intrinsics)
+            result = stream.correct(depth, amplitude, intrinsics)
         except FrameRejected as err:
             self._drop(err.reason, str(err))
             return
@@ -364,9 +462,15 @@ class CorrectorNode(Node):
         depth = mm_to_depth(result.depth_mm, encoding)
         self.pub_depth.publish(image_message(depth, encoding, header=header))
         edges = result.edges.astype(np.uint8) * np.uint8(255)
-        self.pub_edges.publish(image_message(edges, "mono8", header=header))
-        self.pub_confidence.publish(image_message(result.confidence, "32FC1", header=header))
-        self.pub_info.publish(cropped_camera_info(info, result.intrinsics, header=header))
+        self.pubs["edges"].publish(image_message(edges, "mono8", header=header))
+        self.pubs["confidence"].publish(image_message(result.confidence, "32FC1",
+                                                      header=header))
+        self.pubs["output_camera_info"].publish(
+            cropped_camera_info(info, result.intrinsics, header=header))
+        for key in ON_DEMAND:
+            publisher = self.pubs[key]
+            if publisher.get_subscription_count() > 0:
+                publisher.publish(on_demand_message(key, result, header))
 
     def _worker_error(self, err: BaseException) -> None:
         self._drop("internal_error", repr(err))
@@ -445,6 +549,85 @@ class CorrectorNode(Node):
         self._stopping.set()
         self.worker.stop(timeout=WORKER_STOP_S, discard=True)
         super().destroy_node()
+
+
+def on_demand_message(key: str, result: StreamResult, header: Any) -> PointCloud2 | Image:
+    """The message of one of :data:`ON_DEMAND` for ``result``, with ``header``.
+
+    ``points`` / ``input_points``: the organized cloud of the corrected / input depth of the
+    crop (through the crop's intrinsics, in ``result.convention``), intensity = the amplitude;
+    ``correction``: corrected - input, 32FC1 metres.
+    """
+    if key == "correction":
+        return image_message(correction_m(result.depth_mm, result.input_mm), "32FC1",
+                             header=header)
+    depth_mm = result.depth_mm if key == "points" else result.input_mm
+    return point_cloud_message(points_m(depth_mm, result.intrinsics, result.convention),
+                               result.amplitude, header=header)
+
+
+def effective_geodesic(weights: GeodesicParams, values: Mapping[str, Any]) -> GeodesicParams:
+    """The weights file's edge thresholds and geodesic constants with the node's parameters.
+
+    A negative ``edge_low`` / ``edge_high``, ``geodesic_k`` 0 and ``geodesic_sigma`` 0 keep
+    the file's value.
+
+    Raises:
+        InputError: ``edge_low`` above ``edge_high`` (either the file's or a parameter).
+    """
+    low = weights.edge_low if values["edge_low"] < 0 else float(values["edge_low"])
+    high = weights.edge_high if values["edge_high"] < 0 else float(values["edge_high"])
+    if low > high:
+        raise InputError(f"edge_low {low:g} is above edge_high {high:g} (a negative value "
+                         f"stands for the weights file's: {weights.edge_low:g} / "
+                         f"{weights.edge_high:g})")
+    k, sigma = values["geodesic_k"], values["geodesic_sigma"]
+    return dataclasses.replace(weights, edge_low=low, edge_high=high,
+                               k=weights.k if k == 0 else int(k),
+                               sigma=weights.sigma if sigma == 0 else float(sigma))
+
+
+def _stream_for(model: CorrectionModel, values: Mapping[str, Any]) -> DepthStreamCorrector:
+    """The stream corrector ``values`` (the node's parameters) describe, over ``model``.
+
+    Raises:
+        InputError: an invalid combination of the correction's knobs.
+    """
+    return DepthStreamCorrector(model, input_convention=values["input_convention"],
+                                device=values["device"], threads=values["threads"],
+                                geodesic=effective_geodesic(model.geodesic, values))
+
+
+def _warm_up(stream: DepthStreamCorrector, weights: str) -> float:
+    """:meth:`DepthStreamCorrector.warm_up`, seconds; any failure becomes a TofMpdError."""
+    try:
+        return stream.warm_up()
+    except Exception as err:
+        raise TofMpdError(f"the model of {weights} does not run on device "
+                          f"{stream.device!r}: {type(err).__name__}: {err}") from err
+
+
+def _weights_text(values: Mapping[str, Any]) -> str:
+    """The weights file ``values`` name (the shipped one for an empty weights_path)."""
+    return values["weights_path"] or str(default_weights_path())
+
+
+def _rebuilding(parameters: list[Parameter]) -> dict[str, Any]:
+    """The parameters of a change that need a new correction, name -> new value."""
+    return {p.name: p.value for p in parameters if p.name in REBUILD_PARAMETERS}
+
+
+def _assignments(changes: Mapping[str, Any]) -> str:
+    return ", ".join(f"{name}={value!r}" for name, value in changes.items())
+
+
+def _describe(stream: DepthStreamCorrector, weights: str) -> str:
+    """One line on the correction in use, for the log."""
+    g = stream.geodesic
+    return (f"central {stream.crop_width}x{stream.crop_height} window, "
+            f"{stream.input_convention} convention, {weights} on {stream.device}, "
+            f"threads {stream.threads}, edges {g.edge_low:g}/{g.edge_high:g}, "
+            f"geodesic K {g.k} sigma {g.sigma:g}")
 
 
 def _fields(msg: Image) -> tuple[Any, ...]:

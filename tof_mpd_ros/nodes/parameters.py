@@ -7,7 +7,7 @@ on-set callback, so ``ros2 param set`` with a bad value is refused with a reason
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -61,8 +61,17 @@ class ParameterSpec:
         return None
 
 
-def declare(node: Node, specs: Sequence[ParameterSpec]) -> dict[str, Any]:
+def declare(node: Node, specs: Sequence[ParameterSpec], *,
+            check: Callable[[list], str | None] | None = None) -> dict[str, Any]:
     """Declare ``specs`` on ``node``, install the validation callback, return current values.
+
+    Args:
+        node: the node.
+        specs: its parameter table.
+        check: a further validation of a change (``rclpy.parameter.Parameter`` list), called
+            only when every value passed its spec's check; returns the reason to refuse it, or
+            None to accept. For checks that need the values together or cost work (loading a
+            file), which a single spec cannot express.
 
     Raises:
         ValueError: a value given at start-up (``--params-file``, ``-p``) is out of bounds.
@@ -77,6 +86,9 @@ def declare(node: Node, specs: Sequence[ParameterSpec]) -> dict[str, Any]:
             reason = spec.check(p.value) if spec is not None else None
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
+        reason = check(parameters) if check is not None else None
+        if reason:
+            return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(validate)

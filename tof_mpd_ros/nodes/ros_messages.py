@@ -7,10 +7,11 @@ import array as array_mod
 import numpy as np
 from geometry_msgs.msg import Pose
 from scipy.spatial.transform import Rotation
-from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from ..camera import Intrinsics
+from ..errors import InputError
 from ..image_encoding import array_to_image_data
 
 
@@ -32,6 +33,41 @@ def image_message(array: np.ndarray, encoding: str, frame_id: str = "",
     else:
         msg.header.frame_id = frame_id
     return msg
+
+
+#: Fields of the organized clouds the nodes publish: x, y, z (metres) and intensity, float32.
+CLOUD_FIELDS = ("x", "y", "z", "intensity")
+CLOUD_DTYPE = np.dtype({"names": list(CLOUD_FIELDS), "formats": ["<f4"] * len(CLOUD_FIELDS)})
+
+
+def point_cloud_message(points_m: np.ndarray, intensity: np.ndarray,
+                        header: Header) -> PointCloud2:
+    """An organized ``sensor_msgs/PointCloud2``: one point per pixel, row-major.
+
+    Args:
+        points_m: (H, W, 3) float x, y, z in metres in ``header.frame_id``; NaN = no point.
+        intensity: (H, W) float, e.g. the amplitude (any unit).
+        header: stamp and frame_id of the cloud.
+
+    Returns:
+        A cloud of height H and width W with float32 fields x, y, z, intensity (16 bytes a
+        point, little-endian), ``is_dense`` False (invalid points are NaN, not removed).
+    """
+    if points_m.ndim != 3 or points_m.shape[2] != 3 or intensity.shape != points_m.shape[:2]:
+        raise InputError(f"expected (H, W, 3) points and (H, W) intensity, got "
+                         f"{points_m.shape} and {intensity.shape}")
+    h, w = intensity.shape
+    cloud = np.empty((h, w), CLOUD_DTYPE)
+    for i, name in enumerate(CLOUD_FIELDS[:3]):
+        cloud[name] = points_m[..., i]
+    cloud["intensity"] = intensity
+    data = array_mod.array("B")  # as in image_message: no per-byte check in rclpy
+    data.frombytes(cloud.tobytes())
+    fields = [PointField(name=name, offset=CLOUD_DTYPE.fields[name][1],
+                         datatype=PointField.FLOAT32, count=1) for name in CLOUD_FIELDS]
+    return PointCloud2(header=header, height=h, width=w, fields=fields, is_bigendian=False,
+                       point_step=CLOUD_DTYPE.itemsize, row_step=CLOUD_DTYPE.itemsize * w,
+                       data=data, is_dense=False)
 
 
 def camera_info_message(intrinsics: Intrinsics, frame_id: str = "",
