@@ -23,6 +23,8 @@ data_files = [
     (f"share/{PACKAGE}", ["package.xml"]),
     (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
     (f"share/{PACKAGE}/launch", sorted(glob("launch/*.py"))),
+    # Ready-made RViz2 config and Foxglove layout of the live stream (README, "Viewing").
+    (f"share/{PACKAGE}/views", sorted(glob("views/*.rviz") + glob("views/*.json"))),
 ]
 if any(command in sys.argv for command in ("bdist_wheel", "editable_wheel")):
     data_files.append((f"lib/{PACKAGE}", [f"resource/launchers/{exe}" for exe in NODE_EXECUTABLES]))

@@ -14,6 +14,7 @@ import pytest
 REPO = Path(__file__).resolve().parents[1]
 NODE_EXECUTABLES = ("corrector", "collector", "sim_cell")
 ALGORITHM_PACKAGES = ("sim", "recordings", "training", "correction", "evaluation", "mismatch")
+VIEWS = sorted((REPO / "views").glob("*.*"))  # RViz2 config and Foxglove layout
 
 
 def ros2_run_path(prefix_path: str, package: str, executable: str) -> Path:
@@ -78,6 +79,8 @@ def test_colcon_build_installs_resolvable_executables(tmp_path: Path) -> None:
     prefix = workspace / "install" / "tof_mpd_ros"
     assert (prefix / "share/ament_index/resource_index/packages/tof_mpd_ros").is_file()
     assert (prefix / "share/tof_mpd_ros/config/corrector.yaml").is_file()
+    for view in VIEWS:
+        assert (prefix / "share/tof_mpd_ros/views" / view.name).is_file(), view.name
     site = next(prefix.glob("lib/python3*/site-packages"))
     env = {**os.environ, "PYTHONPATH": str(site)}
     for exe in NODE_EXECUTABLES:
@@ -98,3 +101,26 @@ def test_pip_install_resolves_executables_like_ros2_run() -> None:
         assert path == prefix / "lib" / "tof_mpd_ros" / exe
         assert "usage:" in run_help(path)
     assert "usage: tof-mpd" in run_help(prefix / "bin" / "tof-mpd")
+
+
+def test_wheel_installs_the_share_files(tmp_path: Path) -> None:
+    """The wheel (what ``pip install .`` installs) carries the config files, launch files and
+    views into ``<prefix>/share/tof_mpd_ros`` (built from a copy: the checkout stays clean)."""
+    import zipfile
+
+    source = tmp_path / "src"
+    shutil.copytree(REPO, source, ignore=shutil.ignore_patterns(
+        ".git", ".venv*", "build", "install", "log", "__pycache__", "*.egg-info", "out",
+        "dist", ".pytest_cache", ".ruff_cache", ".hypothesis"))
+    done = subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps",
+                           "--no-build-isolation", "-q", "-w", str(tmp_path / "dist"),
+                           str(source)], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    [wheel] = (tmp_path / "dist").glob("tof_mpd_ros-*.whl")
+    version = wheel.name.split("-")[1]
+    share = f"tof_mpd_ros-{version}.data/data/share/tof_mpd_ros/"
+    names = set(zipfile.ZipFile(wheel).namelist())
+    expected = [f"config/{p.name}" for p in (REPO / "config").glob("*.yaml")]
+    expected += [f"launch/{p.name}" for p in (REPO / "launch").glob("*.py")]
+    expected += [f"views/{p.name}" for p in VIEWS]
+    assert VIEWS and not [e for e in expected if share + e not in names], sorted(names)

@@ -89,6 +89,11 @@ PARAMETERS = (
     P("sl_frame_id", "sl_optical_frame", "frame_id of the SL camera image.", read_only=True),
 )
 
+# What the node publishes, key of CELL_TOPICS -> message type: the ToF camera's three topics,
+# and the SL reference (target scene) or the SL camera's image and CameraInfo (hand_eye_board).
+PUBLISHED = {"depth": Image, "amplitude": Image, "info": CameraInfo, "reference": Image,
+             "sl_image": Image, "sl_info": CameraInfo}
+
 # How long a stop waits for the view being rendered.
 WORKER_STOP_S = 60.0
 
@@ -126,18 +131,11 @@ class SimCellNode(Node):
             what = (f"{p['split']} scene {p['scene']} (seed {p['seed']}), "
                     f"{len(self.scene.objects)} objects")
         qos = publisher_qos(p["reliability"])
+        keys = ("depth", "amplitude", "info",
+                *(("sl_image", "sl_info") if self.board_mode else ("reference",)))
         self.publishers_by_key = {
-            "depth": overridable_publisher(self, Image, CELL_TOPICS["depth"], qos),
-            "amplitude": overridable_publisher(self, Image, CELL_TOPICS["amplitude"], qos),
-            "info": overridable_publisher(self, CameraInfo, CELL_TOPICS["info"], qos)}
-        if self.board_mode:
-            self.publishers_by_key["sl_image"] = overridable_publisher(
-                self, Image, CELL_TOPICS["sl_image"], qos)
-            self.publishers_by_key["sl_info"] = overridable_publisher(
-                self, CameraInfo, CELL_TOPICS["sl_info"], qos)
-        else:
-            self.publishers_by_key["reference"] = overridable_publisher(
-                self, Image, CELL_TOPICS["reference"], qos)
+            key: overridable_publisher(self, PUBLISHED[key], CELL_TOPICS[key], qos)
+            for key in keys}
         self._lock = threading.Lock()
         self._cycle: list[dict[str, Image | CameraInfo]] = []
         self._current: dict[str, Image | CameraInfo] | None = None
