@@ -71,6 +71,10 @@ NESTED: dict[str, tuple[str, Callable[[dict[str, float]], bool]]] = {
                    lambda p: p.get("fraction", 0.0) * p.get("delay_mm", 0.0)
                    < SUBSURFACE_MIN_SHIFT_MM),
 }
+#: the profile's refit beside a candidate: coordinate-descent sweeps until one gains less than
+#: REFIT_TOL nats per training pixel (1 mnat/px, a fifteenth of MIN_SCORE), at most REFIT_SWEEPS
+REFIT_SWEEPS = 4
+REFIT_TOL = 1e-3
 #: "interior" metrics leave out pixels this close to a depth edge (px), where flying pixels and
 #: the reference's own edge errors dominate whatever the model
 INTERIOR_EDGE_PX = 2.0
@@ -418,28 +422,53 @@ class _Search:
                     box: Sequence[tuple[float, float]] | None = None) -> FitResult:
         """``result`` with the camera's profile refitted on top of it, scored against the
         current model: what the profile absorbed of this physics before it was tried (a mean
-        offset of a warm-up drift, a range-dependent share of interreflection) goes back to it.
-        Refitting the profile is cheap: its effects come last in the pipeline."""
+        offset of a warm-up drift, a range-dependent share of interreflection, a wiggle that
+        stood in for a lens's halo) goes back to it.
+
+        Coordinate descent: the profile, then the candidate again, in sweeps until a sweep
+        gains less than ``REFIT_TOL`` per training pixel (at most ``REFIT_SWEEPS``). One sweep
+        is not enough where the profile and the candidate trade the same smooth residual: a
+        halo's fraction then climbs a little each sweep (measured: 0.016 → 0.024 over six)."""
         if result.note or not self.refit:
             return result
         config = result.config
-        for name in self.refit:
-            if name == result.effect:
-                continue
-            q = fit_effect(_rebased(self.problem, config), name,
-                           box=self.profile_boxes.get(name))
-            if not q.note and q.train_gain > 0:
-                config = q.config
+        cost = self._train_cost(config)
+        for _ in range(REFIT_SWEEPS):
+            swept = self._sweep(config, result.effect, box)
+            if swept is config:
+                break
+            swept_cost = self._train_cost(swept)
+            if swept_cost > cost - REFIT_TOL:
+                if swept_cost < cost:
+                    config = swept
+                break
+            config, cost = swept, swept_cost
         if config is result.config:
             return result
-        # and the candidate once more on the refitted profile (one step of coordinate descent:
-        # a candidate first fitted against a profile that held part of it can sit far off)
-        q = fit_effect(_rebased(self.problem, config), result.effect, box=box)
-        if not q.note and q.train_gain > 0:
-            config = q.config
         refitted = FitResult(result.effect, config, plain_params(config, result.effect),
                              result.n_params, train_gain=result.train_gain)
         return score_fit(self.problem, refitted)
+
+    def _sweep(self, config: ToFConfig, effect: str,
+               box: Sequence[tuple[float, float]] | None) -> ToFConfig:
+        """One coordinate-descent sweep: each profile effect refitted on ``config``, then
+        ``effect`` (searched in ``box``). Returns ``config`` itself when nothing improved."""
+        start = config
+        for name in self.refit:
+            if name == effect:
+                continue
+            q = fit_effect(_rebased(self.problem, config), name, box=self.profile_boxes.get(name))
+            if not q.note and q.train_gain > 0:
+                config = q.config
+        if config is start:  # the profile did not move: the candidate stays where it was
+            return start
+        q = fit_effect(_rebased(self.problem, config), effect, box=box)
+        return q.config if not q.note and q.train_gain > 0 else config
+
+    def _train_cost(self, config: ToFConfig) -> float:
+        """Mean cost per training pixel of ``config`` (nats)."""
+        total, n = self.problem.total_cost(config, "train")
+        return total / max(n, 1)
 
     def _rebase(self, config: ToFConfig) -> None:
         self.problem = _rebased(self.problem, config)
