@@ -43,7 +43,10 @@ def test_history_bounds_memory() -> None:
     assert pairer.stats.unmatched_dropped == 7
 
 
-def test_worker_drops_oldest_when_consumer_is_slow() -> None:
+def _blocked_worker(maxsize: int) -> tuple[LatestQueueWorker[int], threading.Event,
+                                            list[int]]:
+    """A worker that has taken item 0 and blocks on it until the returned event is set; the
+    list collects what it processed."""
     started, release = threading.Event(), threading.Event()
     seen: list[int] = []
 
@@ -52,9 +55,14 @@ def test_worker_drops_oldest_when_consumer_is_slow() -> None:
         assert release.wait(60)
         seen.append(item)
 
-    worker: LatestQueueWorker[int] = LatestQueueWorker(slow, maxsize=2)
+    worker: LatestQueueWorker[int] = LatestQueueWorker(slow, maxsize=maxsize)
     worker.submit(0)
-    assert started.wait(60)          # the worker has taken item 0 and blocks in slow()
+    assert started.wait(60)
+    return worker, release, seen
+
+
+def test_worker_drops_oldest_when_consumer_is_slow() -> None:
+    worker, release, seen = _blocked_worker(maxsize=2)
     for i in range(1, 6):            # queue holds 2: items 1..3 are dropped, 4 and 5 kept
         worker.submit(i)
     release.set()
@@ -109,17 +117,7 @@ def test_invalid_configuration_is_rejected() -> None:
 
 
 def test_worker_queue_resizes_while_running_dropping_the_oldest() -> None:
-    started, release = threading.Event(), threading.Event()
-    seen: list[int] = []
-
-    def slow(item: int) -> None:
-        started.set()
-        assert release.wait(60)
-        seen.append(item)
-
-    worker: LatestQueueWorker[int] = LatestQueueWorker(slow, maxsize=4)
-    worker.submit(0)
-    assert started.wait(60)          # item 0 is being processed; 1..4 wait
+    worker, release, seen = _blocked_worker(maxsize=4)   # item 0 is being processed; 1..4 wait
     for i in range(1, 5):
         worker.submit(i)
     assert worker.resize(2) == 2 and worker.maxsize == 2   # 1 and 2 go, 3 and 4 stay
