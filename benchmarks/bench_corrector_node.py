@@ -37,7 +37,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_machine import cpu_model
+
+from tof_mpd_ros.machine import cpu_model
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # run from a checkout without installing

@@ -45,8 +45,8 @@ from typing import Any
 
 import numba
 import numpy as np
-from bench_machine import cpu_model
 
+from tof_mpd_ros.machine import cpu_model
 from tof_mpd_ros.sim import raycast
 from tof_mpd_ros.sim import structured_light as sl
 from tof_mpd_ros.sim.cell import SimCell

@@ -34,9 +34,8 @@ import platform
 import time
 from pathlib import Path
 
-from bench_machine import cpu_model
-
 from tof_mpd_ros.cli.main import main as cli
+from tof_mpd_ros.machine import cpu_model
 from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.dataset import DatasetSpec, generate_dataset
 from tof_mpd_ros.sim.tof import ToFConfig

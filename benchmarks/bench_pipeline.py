@@ -60,6 +60,7 @@ from tof_mpd_ros.correction import pipeline as pipeline_module
 from tof_mpd_ros.correction import reference_pipeline as ref
 from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
+from tof_mpd_ros.machine import cpu_model, cpuinfo
 
 PAPER_MS = 165.0                       # the paper, per frame, with a GPU
 TARGETS_MS = {"180x140": 25.0, "320x240": 60.0}   # issue 8 (SPEC §6: <= 33 ms at 180x140)
@@ -75,19 +76,6 @@ def fast_correct(model: CorrectionModel, range_mm: np.ndarray, amplitude: np.nda
 
 # ---------------------------------------------------------------------------------------------
 # machine
-
-
-def cpuinfo() -> dict[str, str]:
-    """First processor block of /proc/cpuinfo as a dict (empty off Linux)."""
-    try:
-        text = Path("/proc/cpuinfo").read_text(encoding="utf-8")
-    except OSError:
-        return {}
-    info: dict[str, str] = {}
-    for line in text.split("\n\n")[0].splitlines():
-        key, _, value = line.partition(":")
-        info[key.strip()] = value.strip()
-    return info
 
 
 def cpu_peak(n_cores: int) -> dict[str, Any]:
@@ -137,9 +125,8 @@ def gemm_ceiling(n: int = 1536, repeats: int = 5) -> float:
 def machine() -> dict[str, Any]:
     """CPU model, cores, threads, load."""
     info = cpuinfo()
-    model = info.get("model name") or platform.processor() or platform.machine()
     extra = f" (family {info.get('cpu family')}, model {info.get('model')})" if info else ""
-    return {"cpu": model + extra, "cpus": os.cpu_count(),
+    return {"cpu": cpu_model() + extra, "cpus": os.cpu_count(),
             "affinity_cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
             else os.cpu_count(),
             "torch_threads": torch.get_num_threads(), "numba_threads": numba.get_num_threads(),

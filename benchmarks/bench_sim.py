@@ -30,8 +30,8 @@ import time
 
 import numba
 import numpy as np
-from bench_machine import cpu_model
 
+from tof_mpd_ros.machine import cpu_model
 from tof_mpd_ros.sim.cell import CameraModel, SimCell
 from tof_mpd_ros.sim.objects import ObjectSpec
 from tof_mpd_ros.sim.poses import look_at

@@ -26,13 +26,13 @@ import os
 import time
 
 import numpy as np
-from bench_machine import cpu_model
 
 from tof_mpd_ros.correction.default_weights import default_weights_path
 from tof_mpd_ros.correction.edges import GT_HIGH_MM, GT_LOW_MM, ground_truth_edges
 from tof_mpd_ros.correction.pipeline import correct
 from tof_mpd_ros.correction.weights import load_weights
 from tof_mpd_ros.evaluation.metrics import FrameAccumulator, boundary_region, edge_precision_recall
+from tof_mpd_ros.machine import cpu_model
 from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.dataset import scene_rng
 from tof_mpd_ros.sim.raycast import render_surface

@@ -20,11 +20,10 @@ import json
 import os
 import time
 
-from bench_machine import cpu_model
-
 from tof_mpd_ros.cli.calibrate import load_calibration
 from tof_mpd_ros.cli.frame_files import iter_frames
 from tof_mpd_ros.evaluation.components import evaluate_model
+from tof_mpd_ros.machine import cpu_model
 from tof_mpd_ros.training import TrainConfig, train
 
 

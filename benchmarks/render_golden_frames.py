@@ -35,9 +35,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from bench_machine import cpu_model
 
 from tof_mpd_ros.camera import Intrinsics
+from tof_mpd_ros.machine import cpu_model
 from tof_mpd_ros.sim.cell import CameraModel
 from tof_mpd_ros.sim.objects import ObjectSpec
 from tof_mpd_ros.sim.pathtrace import (
