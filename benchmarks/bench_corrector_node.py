@@ -38,8 +38,6 @@ from pathlib import Path
 
 import numpy as np
 
-from tof_mpd_ros.machine import cpu_model
-
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # run from a checkout without installing
     sys.path.insert(0, str(REPO))
@@ -247,6 +245,7 @@ def main() -> None:
     from tof_mpd_ros.correction.depth_stream import DepthStreamCorrector
     from tof_mpd_ros.correction.pipeline import CorrectionModel
     from tof_mpd_ros.correction.weights import load_weights, save_weights
+    from tof_mpd_ros.machine import cpu_model
 
     weights = args.weights
     if weights is None:

@@ -43,10 +43,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
 import numba
 import numpy as np
 
-from tof_mpd_ros.machine import cpu_model
 from tof_mpd_ros.sim import raycast
 from tof_mpd_ros.sim import structured_light as sl
 from tof_mpd_ros.sim.cell import SimCell

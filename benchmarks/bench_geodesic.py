@@ -20,6 +20,10 @@ import platform
 import statistics
 import time
 
+from tof_mpd_ros.machine import set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
 import numba
 import numpy as np
 

@@ -34,8 +34,11 @@ import platform
 import time
 from pathlib import Path
 
+from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
 from tof_mpd_ros.cli.main import main as cli
-from tof_mpd_ros.machine import cpu_model
 from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.dataset import DatasetSpec, generate_dataset
 from tof_mpd_ros.sim.tof import ToFConfig

@@ -28,10 +28,13 @@ import platform
 import statistics
 import time
 
+from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
 import numba
 import numpy as np
 
-from tof_mpd_ros.machine import cpu_model
 from tof_mpd_ros.sim.cell import CameraModel, SimCell
 from tof_mpd_ros.sim.objects import ObjectSpec
 from tof_mpd_ros.sim.poses import look_at

@@ -25,6 +25,10 @@ import json
 import os
 import time
 
+from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
 import numpy as np
 
 from tof_mpd_ros.correction.default_weights import default_weights_path
@@ -32,7 +36,6 @@ from tof_mpd_ros.correction.edges import GT_HIGH_MM, GT_LOW_MM, ground_truth_edg
 from tof_mpd_ros.correction.pipeline import correct
 from tof_mpd_ros.correction.weights import load_weights
 from tof_mpd_ros.evaluation.metrics import FrameAccumulator, boundary_region, edge_precision_recall
-from tof_mpd_ros.machine import cpu_model
 from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.dataset import scene_rng
 from tof_mpd_ros.sim.raycast import render_surface

@@ -34,10 +34,13 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
 import numpy as np
 
 from tof_mpd_ros.camera import Intrinsics
-from tof_mpd_ros.machine import cpu_model
 from tof_mpd_ros.sim.cell import CameraModel
 from tof_mpd_ros.sim.objects import ObjectSpec
 from tof_mpd_ros.sim.pathtrace import (

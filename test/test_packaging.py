@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+import textwrap
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -60,6 +61,40 @@ def test_algorithm_modules_import_without_ros() -> None:
                "        importlib.import_module(m.name)\n"
                "import tof_mpd_ros.cli.main\n")
     done = subprocess.run([sys.executable, "-c", blocker], cwd=REPO, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+
+
+#: import names of the third-party libraries the package loads; some edit os.environ on import
+#: (cv2: LD_LIBRARY_PATH; scikit-learn: KMP_*), which is theirs to answer for
+DEPENDENCIES = ("numpy", "scipy", "torch", "cv2", "numba", "sklearn", "mcap", "mcap_ros2", "yaml",
+                "tqdm", "matplotlib", "matplotlib.pyplot")
+
+
+def test_importing_the_package_leaves_the_environment_alone() -> None:
+    """``import tof_mpd_ros`` changes no environment variable, and nor does any algorithm module
+    or the CLI's (beyond what their third-party libraries do): the entry points choose thread
+    policies (tof_mpd_ros.machine). Run in an interpreter started with a clean environment."""
+    code = textwrap.dedent(f"""
+        import importlib, os, pkgutil
+        def changes(before):
+            keys = before.keys() | os.environ.keys()
+            return {{k: os.environ.get(k) for k in keys if before.get(k) != os.environ.get(k)}}
+        before = dict(os.environ)
+        import tof_mpd_ros
+        assert not changes(before), ("import tof_mpd_ros", changes(before))
+        for name in {DEPENDENCIES!r}:
+            importlib.import_module(name)
+        before = dict(os.environ)
+        import tof_mpd_ros.machine, tof_mpd_ros.cli.main
+        for sub in {ALGORITHM_PACKAGES!r}:
+            pkg = importlib.import_module("tof_mpd_ros." + sub)
+            for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + "."):
+                importlib.import_module(m.name)
+        assert not changes(before), ("the modules", changes(before))
+        """)
+    clean = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "PYTHONPATH": str(REPO)}
+    done = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=clean, capture_output=True,
                           text=True, timeout=300)
     assert done.returncode == 0, done.stderr
 
