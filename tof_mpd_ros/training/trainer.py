@@ -52,6 +52,7 @@ import numpy as np
 import torch
 import torch.nn.functional as tnf
 
+from ..atomic_file import write_atomically
 from ..correction.calibration import IntrinsicCalibration
 from ..correction.encoding import EncodingConfig
 from ..correction.networks import N_ORIENTATIONS, RangeRecoveryNet
@@ -392,11 +393,10 @@ def _fingerprint(cfg: TrainConfig, seed: int, data: TrainingData, val_ids: list[
 
 def _save_checkpoint(path: Path, nets: _Nets, opt: torch.optim.Optimizer, epoch: int,
                      history: list[dict[str, float]], fingerprint: str) -> None:
+    """Write what :func:`_load_checkpoint` resumes from (atomically)."""
     state = {"epoch": epoch, "nets": nets.state_dict(), "optimizer": opt.state_dict(),
              "history": history, "fingerprint": fingerprint}
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(state, tmp)
-    os.replace(tmp, path)
+    write_atomically(path, lambda stream: torch.save(state, stream))
 
 
 def _load_checkpoint(path: Path, nets: _Nets, opt: torch.optim.Optimizer, fingerprint: str
