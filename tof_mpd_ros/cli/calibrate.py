@@ -36,7 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def fit_from_file(path: Path, amplitude_term: str = "linear"):
     """Fit an IntrinsicCalibration from every frame of a recording or NPZ."""
     from ..correction.calibration import IntrinsicCalibration
-    from .frame_files import iter_frames
+    from ..recordings import iter_frames
 
     frames = [f for f in iter_frames(path) if f.reference_mm is not None]
     if not frames:

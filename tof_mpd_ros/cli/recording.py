@@ -153,8 +153,8 @@ def _import_adi(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..errors import RecordingError
+    from ..recordings import write_frames
     from ..recordings.adi import adi_modes, read_adi
-    from .frame_files import write_frames
 
     modes = adi_modes(args.folder)
     if not modes:

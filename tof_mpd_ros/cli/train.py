@@ -69,7 +69,7 @@ def _clip_arg(text: str) -> tuple[float | None, ...]:
 
 def load_training_frames(paths: list[Path]) -> list:
     from ..errors import InputError
-    from .frame_files import iter_frames
+    from ..recordings import iter_frames
 
     frames = [f for path in paths for f in iter_frames(path)]
     usable = [f for f in frames if f.reference_mm is not None]

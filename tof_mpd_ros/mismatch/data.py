@@ -24,10 +24,11 @@ SPLIT_TILE_PX = 8
 
 
 def load_frames(path: str | Path) -> list[ToFFrame]:
-    """Frames of a recording (directory or ``.mcap``) or an interchange ``.npz``; a folder laid
-    out like the Azure Kinect sample (``depth_000.npy``, ``ir_000.npy``, ``calibration.json``)
-    becomes one frame with its plane-fit reference (:mod:`.realdata`), and so does an Analog
-    Devices folder (``depth_mode3.npy`` ...: its mode 3).
+    """Frames of a recording (directory or ``.mcap``) or an interchange ``.npz``, opened by
+    :func:`tof_mpd_ros.recordings.iter_frames` (so ``.NPZ`` too); a folder laid out like the
+    Azure Kinect sample (``depth_000.npy``, ``ir_000.npy``, ``calibration.json``) becomes one
+    frame with its plane-fit reference (:mod:`.realdata`), and so does an Analog Devices folder
+    (``depth_mode3.npy`` ...: its mode 3).
 
     Raises:
         MismatchError: the path does not exist, holds no frame, or a frame has no reference.
@@ -40,14 +41,9 @@ def load_frames(path: str | Path) -> list[ToFFrame]:
         return [azure_kinect_frame(path)[0]]
     if is_adi_dir(path):
         return [adi_frame(path, 3)]   # the long-range mode; the CLI's --mode picks another
+    from ..recordings import iter_frames
     try:
-        if path.suffix == ".npz":
-            from ..recordings import load_npz
-            frames = load_npz(path)
-        else:
-            from ..recordings import RecordingReader
-            with RecordingReader(path) as reader:
-                frames = list(reader.frames())
+        frames = list(iter_frames(path))
     except TofMpdError as err:
         raise MismatchError(f"{path}: cannot read frames: {err}") from err
     check_frames(frames)

@@ -1,7 +1,9 @@
-"""Read and write "frames" files for the CLI: a recording directory or an NPZ interchange file.
+"""Frame files: a recording (rosbag2 directory or ``.mcap``) or an NPZ interchange file.
 
-Commands that take "a recording or an NPZ" and write "the same kind" go through these two
-functions, so every command treats both formats alike.
+Everything that takes "a recording or an NPZ" (every ``tof-mpd`` command, the mismatch tool,
+the benchmarks) opens it with :func:`iter_frames`, and everything that writes "the same kind"
+with :func:`write_frames`, so both formats are told apart the same way everywhere: by a
+``.npz`` suffix in any letter case.
 """
 
 from __future__ import annotations
@@ -11,16 +13,23 @@ from pathlib import Path
 
 from ..errors import RecordingError
 from ..frame import ToFFrame
+from .npz import load_npz, save_npz
+from .reader import RecordingReader
+from .writer import RecordingWriter
 
 
 def is_npz(path: str | Path) -> bool:
+    """Whether ``path`` names an NPZ interchange file (suffix ``.npz``, any case)."""
     return Path(path).suffix.lower() == ".npz"
 
 
 def iter_frames(path: str | Path) -> Iterator[ToFFrame]:
-    """Stream the frames of a recording (directory or .mcap) or an NPZ file."""
-    from ..recordings import RecordingReader, load_npz
+    """Stream the frames of a recording (directory or ``.mcap``) or an NPZ file; the package's
+    one opener of "a recording or an NPZ".
 
+    Raises:
+        RecordingError: ``path`` does not exist or cannot be read.
+    """
     path = Path(path)
     if not path.exists():
         raise RecordingError(f"{path}: no such file or directory")
@@ -33,8 +42,6 @@ def iter_frames(path: str | Path) -> Iterator[ToFFrame]:
 
 def count_frames(path: str | Path) -> int:
     """Number of frames in a recording or NPZ (cheap for recordings: from the summary)."""
-    from ..recordings import RecordingReader, load_npz
-
     if is_npz(path):
         return len(load_npz(path))
     with RecordingReader(path) as reader:
@@ -43,8 +50,6 @@ def count_frames(path: str | Path) -> int:
 
 def write_frames(path: str | Path, frames: Iterable[ToFFrame], *, overwrite: bool = False) -> int:
     """Write frames as an NPZ (``*.npz``) or a new recording directory; returns the count."""
-    from ..recordings import RecordingWriter, save_npz
-
     if is_npz(path):
         return save_npz(path, frames, overwrite=overwrite)
     count = 0
