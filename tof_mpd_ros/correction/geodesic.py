@@ -52,22 +52,18 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
 
 import numba
 import numpy as np
 
 from ..errors import InputError
+from ..thread_pools import shared_pool
 from ..validation import check_array, check_same_shape
 
 DEFAULT_MAX_STEPS = 32.0
 # Concurrent calls share the worker pool; one call at a time keeps each call's threads busy.
 _KERNEL_LOCK = threading.Lock()
-_POOLS: dict[int, ThreadPoolExecutor] = {}
-if hasattr(os, "register_at_fork"):   # a forked child must not reuse the parent's dead threads
-    os.register_at_fork(after_in_child=_POOLS.clear)
 # (dy, dx, is_diagonal) of the 8 moves.
 _MOVES = np.array([[-1, -1, 1], [-1, 0, 0], [-1, 1, 1], [0, -1, 0], [0, 1, 0],
                    [1, -1, 1], [1, 0, 0], [1, 1, 1]], dtype=np.int64)
@@ -456,10 +452,7 @@ def _run_chunks(kernel: object, n_chunks: int, *args: object) -> None:
         if workers == 1:
             kernel(0, 1, n_chunks, *args)
             return
-        pool = _POOLS.get(workers)
-        if pool is None:
-            pool = _POOLS[workers] = ThreadPoolExecutor(max_workers=workers - 1,
-                                                        thread_name_prefix="tof-mpd-geodesic")
+        pool = shared_pool("geodesic", workers)
         futures = [pool.submit(kernel, t, workers, n_chunks, *args) for t in range(1, workers)]
         try:
             kernel(0, workers, n_chunks, *args)

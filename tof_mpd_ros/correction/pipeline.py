@@ -44,7 +44,6 @@ from __future__ import annotations
 import os
 import threading
 import weakref
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -52,6 +51,7 @@ import numpy as np
 import torch
 
 from ..errors import InputError
+from ..thread_pools import shared_pool
 from ..validation import check_array
 from .calibration import IntrinsicCalibration
 from .encoding import (
@@ -258,22 +258,9 @@ def _worker_count(threads: int | None) -> int:
     return max(1, min(torch.get_num_threads(), usable or 1))
 
 
-_POOLS: dict[int, ThreadPoolExecutor] = {}
-_POOLS_LOCK = threading.Lock()
-if hasattr(os, "register_at_fork"):   # a forked child must not reuse the parent's dead threads
-    os.register_at_fork(after_in_child=_POOLS.clear)
+_ENGINES_LOCK = threading.Lock()
 # id(model) -> (weak reference to the model, cache key, engine).
 _ENGINES: dict[int, tuple[weakref.ref, tuple, _FastEngine]] = {}
-
-
-def _pool(workers: int) -> ThreadPoolExecutor:
-    """A process-wide pool of ``workers - 1`` threads (the caller is the last worker)."""
-    with _POOLS_LOCK:
-        pool = _POOLS.get(workers)
-        if pool is None:
-            pool = _POOLS[workers] = ThreadPoolExecutor(
-                max_workers=workers - 1, thread_name_prefix="tof-mpd-correct")
-        return pool
 
 
 def _model_key(model: CorrectionModel, precision: str, workers: int) -> tuple:
@@ -287,12 +274,12 @@ def _model_key(model: CorrectionModel, precision: str, workers: int) -> tuple:
 def _engine(model: CorrectionModel, precision: str, workers: int) -> _FastEngine:
     """The cached fast-path engine of ``model`` (rebuilt when its weights change in place)."""
     key = _model_key(model, precision, workers)
-    with _POOLS_LOCK:
+    with _ENGINES_LOCK:
         entry = _ENGINES.get(id(model))
         if entry is not None and entry[0]() is model and entry[1] == key:
             return entry[2]
     engine = _FastEngine(model, precision, workers)
-    with _POOLS_LOCK:
+    with _ENGINES_LOCK:
         mid = id(model)
         _ENGINES[mid] = (weakref.ref(model, lambda _ref: _ENGINES.pop(mid, None)), key, engine)
     return engine
@@ -351,7 +338,7 @@ class _FastEngine:
             if self.workers == 1:
                 self._work(0, do_f, do_g)
                 return
-            pool = _pool(self.workers)
+            pool = shared_pool("correct", self.workers)
             futures = [pool.submit(_single_threaded, self._work, t, do_f, do_g)
                        for t in range(1, self.workers)]
             try:
