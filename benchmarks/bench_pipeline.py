@@ -63,7 +63,7 @@ from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
 from tof_mpd_ros.machine import cpu_model, cpuinfo
 
 PAPER_MS = 165.0                       # the paper, per frame, with a GPU
-TARGETS_MS = {"180x140": 25.0, "320x240": 60.0}   # issue 8 (SPEC §6: <= 33 ms at 180x140)
+TARGETS_MS = {"180x140": 25.0, "320x240": 60.0}   # issue 8 (docs/performance.md)
 STAGES = ("calibration", "encoding", "F", "G", "F+G", "NMS+hysteresis", "geodesic", "other")
 PRECISION = {"value": "float32"}        # --precision: the fast path's first-layer GEMMs
 

@@ -41,6 +41,7 @@ set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the pol
 import numpy as np
 
 from tof_mpd_ros.camera import Intrinsics
+from tof_mpd_ros.pose import look_at
 from tof_mpd_ros.sim.cell import CameraModel
 from tof_mpd_ros.sim.objects import ObjectSpec
 from tof_mpd_ros.sim.pathtrace import (
@@ -57,7 +58,6 @@ from tof_mpd_ros.sim.pathtrace import (
 )
 from tof_mpd_ros.sim.pathtrace.golden import write_golden
 from tof_mpd_ros.sim.pathtrace.render import versions
-from tof_mpd_ros.sim.poses import look_at
 from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table
 from tof_mpd_ros.sim.tof import ToFConfig

@@ -13,10 +13,10 @@ from tof_mpd_ros.collection import session
 from tof_mpd_ros.collection.plan import load_plan, save_plan, sim_plan
 from tof_mpd_ros.collection.runner import run_plan
 from tof_mpd_ros.errors import CaptureError, InputError
+from tof_mpd_ros.pose import pose_m_to_mm
 from tof_mpd_ros.recordings import RecordingReader, RecordingWriter
 from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.dataset import scene_rng
-from tof_mpd_ros.sim.poses import pose_m_to_mm
 from tof_mpd_ros.sim.scene import make_scene
 from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M
 

@@ -38,8 +38,7 @@ from tof_mpd_ros.collection.hand_eye_sim import (
 )
 from tof_mpd_ros.errors import CalibrationError, InputError
 from tof_mpd_ros.frame import ToFFrame
-from tof_mpd_ros.sim.cell import SimCell
-from tof_mpd_ros.sim.poses import (
+from tof_mpd_ros.pose import (
     invert_pose,
     make_pose,
     pose_m_to_mm,
@@ -48,6 +47,7 @@ from tof_mpd_ros.sim.poses import (
     rot_y,
     rot_z,
 )
+from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.structured_light import StructuredLightConfig
 from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M, solve_ik
 

@@ -15,10 +15,10 @@ from tof_mpd_ros.mismatch.predict import (
     infer_albedo,
     noise_std_mm,
 )
+from tof_mpd_ros.pose import rotvec_to_matrix
 from tof_mpd_ros.sim.tof import ToFConfig, render_from_reference, render_tof
 from tof_mpd_ros.sim.tof.analytic import box_on_table_scene, plane_scene, raycast
 from tof_mpd_ros.sim.tof.effects.noise import range_noise_std_mm
-from tof_mpd_ros.sim.tof.warp import rotation_matrix
 
 K = Intrinsics.from_fov(40, 30, 74.0)
 QUIET = ToFConfig.nominal().with_effect("noise", enabled=False)
@@ -62,7 +62,7 @@ def test_pose_error_prediction_matches_a_moved_camera(move):
     supersampled render and a one-sample reference by more than the move does."""
     quiet = QUIET.with_effect("multipath", enabled=False)
     solids = box_on_table_scene()
-    rot = rotation_matrix(1e-3 * np.array([move.get(f"r{a}_mrad", 0.0) for a in "xyz"]))
+    rot = rotvec_to_matrix(1e-3 * np.array([move.get(f"r{a}_mrad", 0.0) for a in "xyz"]))
     t = np.array([move.get(f"t{a}_mm", 0.0) for a in "xyz"])
     moved = [replace(s, normals=s.normals @ rot, offsets=s.offsets - s.normals @ t)
              for s in solids]

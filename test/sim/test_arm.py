@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tof_mpd_ros.errors import ArmError
-from tof_mpd_ros.sim.poses import make_pose, pose_m_to_mm, pose_mm_to_m, rot_x
+from tof_mpd_ros.pose import make_pose, pose_m_to_mm, pose_mm_to_m, rot_x
 from tof_mpd_ros.sim.ur5e import (
     DEFAULT_T_FLANGE_CAMERA_M,
     HOME_JOINTS,

@@ -14,11 +14,11 @@ import numpy as np
 import pytest
 from sim_helpers import small_camera
 
+from tof_mpd_ros.pose import invert_pose, rotate, transform_points
 from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.checkerboard import calibration_poses, render_checkerboard
 from tof_mpd_ros.sim.dataset import scene_rng
 from tof_mpd_ros.sim.objects import ObjectSpec
-from tof_mpd_ros.sim.poses import invert_pose, rotate, transform_points
 from tof_mpd_ros.sim.raycast import (
     RayHits,
     camera_rays,

@@ -14,10 +14,10 @@ import pytest
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.errors import InputError
+from tof_mpd_ros.pose import look_at
 from tof_mpd_ros.sim.cell import CameraModel
 from tof_mpd_ros.sim.dataset import scene_rng
 from tof_mpd_ros.sim.objects import ObjectSpec
-from tof_mpd_ros.sim.poses import look_at
 from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table, make_scene
 from tof_mpd_ros.sim.structured_light import reference_range

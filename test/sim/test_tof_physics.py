@@ -1,5 +1,5 @@
 """AMCW ToF physics with numbers: direct return, amplitude law, phase wrapping, mixed pixels,
-noise scaling (SPEC §4)."""
+noise scaling (docs/physics.md)."""
 
 from __future__ import annotations
 

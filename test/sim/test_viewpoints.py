@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from tof_mpd_ros.errors import InputError, SimulationError
-from tof_mpd_ros.sim.poses import pose_m_to_mm
+from tof_mpd_ros.pose import pose_m_to_mm
 from tof_mpd_ros.sim.scene import SceneConfig, make_box_scene, make_scene
 from tof_mpd_ros.sim.ur5e import camera_pose, link_frames
 from tof_mpd_ros.sim.viewpoints import ViewpointConfig, plan_viewpoints, view_pose_mm

@@ -15,7 +15,7 @@ import time
 import numpy as np
 
 from ..errors import ArmError
-from .ur_pose import matrix_to_pose_vector, pose_vector_to_matrix
+from ..pose import matrix_to_pose_vector, pose_vector_to_matrix
 
 
 class UrRtdeSession:

@@ -17,7 +17,7 @@ def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "recording", help="inspect recordings; convert between recordings and .npz",
         description="rosbag2 MCAP recordings (directory with metadata.yaml + .mcap) and the "
-                    ".npz interchange of SPEC §3.")
+                    ".npz interchange (docs/recordings.md).")
     sub = parser.add_subparsers(dest="recording_command", metavar="SUBCOMMAND", required=True)
 
     info = sub.add_parser(

@@ -136,8 +136,8 @@ def run_predict(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..frame import ToFFrame
+    from ..pose import pose_m_to_mm
     from ..recordings import count_frames, iter_frames, write_frames
-    from ..sim.poses import pose_m_to_mm
     from ..sim.tof import render_from_reference
     from ..sim.tof.reference_world import ReferenceView, fusion_views
 
@@ -173,8 +173,8 @@ def run_predict(args: argparse.Namespace) -> int:
 
 def _references_and_poses(path: Path) -> tuple[list, list]:
     """Every frame's reference (mm) and camera → world pose (mm), None where absent."""
+    from ..pose import pose_m_to_mm
     from ..recordings import iter_frames
-    from ..sim.poses import pose_m_to_mm
 
     refs, poses = [], []
     for frame in iter_frames(path):

@@ -32,12 +32,17 @@ from typing import Any
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.spatial.transform import Rotation
 
-from ..arm.ur_pose import matrix_to_pose_vector
 from ..camera import Intrinsics
 from ..errors import CalibrationError, InputError
-from ..sim.poses import invert_pose, make_pose
+from ..pose import (
+    invert_pose,
+    make_pose,
+    matrix_to_pose_vector,
+    matrix_to_rotvec,
+    mean_pose,
+    rotvec_to_matrix,
+)
 from ..validation import check_array
 from .hand_eye_detect import BoardDetection, CalibrationBoard, detect_board
 from .hand_eye_plan import HandEyePlanConfig, hand_eye_plan, rotation_axis_spread_deg
@@ -159,15 +164,9 @@ def pose_difference(a: np.ndarray, b: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(delta[:3, 3]) * 1000.0), rotation_angle_deg(delta[:3, :3])
 
 
-def _average_poses(poses: Sequence[np.ndarray]) -> np.ndarray:
-    """(4, 4) chordal mean of poses: mean rotation (quaternion average) and mean translation."""
-    stack = np.asarray(poses)
-    rotation = Rotation.from_matrix(stack[:, :3, :3]).mean().as_matrix()
-    return make_pose(rotation, stack[:, :3, 3].mean(axis=0))
-
-
 def _vec_to_pose(v: np.ndarray) -> np.ndarray:
-    return make_pose(Rotation.from_rotvec(v[:3]).as_matrix(), v[3:])
+    """(4, 4) pose of the optimiser's (6,) ``[rotation vector (rad), translation]``."""
+    return make_pose(rotvec_to_matrix(v[:3]), v[3:])
 
 
 # -------------------------------------------------------------------- linear hand-eye solvers
@@ -201,7 +200,7 @@ def _skew(v: np.ndarray) -> np.ndarray:
 def _tsai_lenz(a: list[np.ndarray], b: list[np.ndarray]) -> np.ndarray:
     """Tsai & Lenz (1989): rotation from modified Rodrigues vectors, then translation."""
     def rodrigues(m: np.ndarray) -> np.ndarray:
-        rv = Rotation.from_matrix(m[:3, :3]).as_rotvec()
+        rv = matrix_to_rotvec(m)
         angle = np.linalg.norm(rv)
         return rv if angle == 0 else 2.0 * math.sin(angle / 2.0) * rv / angle
     pa, pb = [rodrigues(m) for m in a], [rodrigues(n) for n in b]
@@ -217,8 +216,7 @@ def _tsai_lenz(a: list[np.ndarray], b: list[np.ndarray]) -> np.ndarray:
 
 def _park_martin(a: list[np.ndarray], b: list[np.ndarray]) -> np.ndarray:
     """Park & Martin (1994): rotation ``(M^T M)^-1/2 M^T`` with ``M = sum beta alpha^T``."""
-    m = sum(np.outer(Rotation.from_matrix(n[:3, :3]).as_rotvec(),
-                     Rotation.from_matrix(k[:3, :3]).as_rotvec())
+    m = sum(np.outer(matrix_to_rotvec(n), matrix_to_rotvec(k))
             for k, n in zip(a, b, strict=True))
     w, v = np.linalg.eigh(m.T @ m)
     if w.min() <= 1e-12:
@@ -337,7 +335,7 @@ class _CameraViews:
 
     def board_in_base(self, camera_to_flange: np.ndarray) -> np.ndarray:
         """Board pose in the base (m) implied by each view through the hand-eye, averaged."""
-        return _average_poses([g @ camera_to_flange @ c
+        return mean_pose([g @ camera_to_flange @ c
                                for g, c in zip(self.tcp, self.board_poses(), strict=True)])
 
 
@@ -411,7 +409,7 @@ def _sl_to_tof_initial(tof: _CameraViews, sl: _CameraViews) -> np.ndarray:
     if not pairs:
         raise CalibrationError("no view has the board detected by both the ToF and the SL "
                                "camera; the ToF-to-SL transform cannot be estimated")
-    return _average_poses(pairs)
+    return mean_pose(pairs)
 
 
 def _refine(x0: np.ndarray, s0: np.ndarray, b0: np.ndarray, tof: _CameraViews,

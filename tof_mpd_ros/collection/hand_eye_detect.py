@@ -21,8 +21,8 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import CalibrationError, InputError
+from ..pose import make_pose, rotvec_to_matrix
 from ..sim.checkerboard import CheckerboardConfig
-from ..sim.poses import make_pose
 from ..validation import check_array
 
 # A PnP fit worse than this (px RMS) means a mislabelled or partly wrong detection.
@@ -209,7 +209,7 @@ def board_pose(corners_px: np.ndarray, board: CalibrationBoard,
     rvec, tvec = cv2.solvePnPRefineLM(obj, corners_px, k, dist, rvec, tvec)
     projected, _ = cv2.projectPoints(obj, rvec, tvec, k, dist)
     rms = float(np.sqrt(np.mean(np.sum((projected.reshape(-1, 2) - corners_px) ** 2, axis=1))))
-    return make_pose(cv2.Rodrigues(rvec)[0], tvec.ravel()), rms
+    return make_pose(rotvec_to_matrix(rvec.ravel()), tvec.ravel()), rms
 
 
 def detect_board(image: np.ndarray, board: CalibrationBoard, intrinsics: Intrinsics, *,

@@ -18,11 +18,17 @@ from dataclasses import dataclass, field
 from itertools import combinations, pairwise
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..camera import PAPER_CROP, Intrinsics
 from ..errors import ArmError, CalibrationError, InputError
-from ..sim.poses import invert_pose, look_at, pose_m_to_mm, pose_mm_to_m, transform_points
+from ..pose import (
+    invert_pose,
+    look_at,
+    matrix_to_rotvec,
+    pose_m_to_mm,
+    pose_mm_to_m,
+    transform_points,
+)
 from ..sim.structured_light import StructuredLightConfig
 from ..sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M, HOME_JOINTS, forward_kinematics
 from ..sim.viewpoints import ViewpointConfig, reach_camera_pose
@@ -178,7 +184,7 @@ def rotation_axis_spread_deg(tcp_to_base_m: list[np.ndarray] | np.ndarray,
     poses = np.asarray(tcp_to_base_m, dtype=np.float64)
     axes = []
     for a, b in pairwise(poses):
-        rotvec = Rotation.from_matrix(a[:3, :3].T @ b[:3, :3]).as_rotvec()
+        rotvec = matrix_to_rotvec(a[:3, :3].T @ b[:3, :3])
         if np.linalg.norm(rotvec) >= math.radians(min_angle_deg):
             axes.append(rotvec / np.linalg.norm(rotvec))
     spread = 0.0

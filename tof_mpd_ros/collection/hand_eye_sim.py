@@ -21,14 +21,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..camera import Intrinsics
 from ..errors import InputError
 from ..frame import ToFFrame
+from ..pose import invert_pose, make_pose, pose_m_to_mm, pose_mm_to_m, rotvec_to_matrix
 from ..sim.cell import SimCell
 from ..sim.checkerboard import CheckerboardConfig, render_checkerboard
-from ..sim.poses import invert_pose, make_pose, pose_m_to_mm, pose_mm_to_m
 from ..sim.structured_light import StructuredLightConfig
 from ..sim.surface import SurfaceImage
 from ..sim.tof import render_tof
@@ -292,5 +291,5 @@ def perturb_pose(pose_m: np.ndarray, rng: np.random.Generator, *, translation_mm
     direction = rng.normal(size=3)
     rotvec = np.radians(rotation_deg) * axis / np.linalg.norm(axis)
     offset = translation_mm / 1000.0 * direction / np.linalg.norm(direction)
-    delta = make_pose(Rotation.from_rotvec(rotvec).as_matrix(), offset)
+    delta = make_pose(rotvec_to_matrix(rotvec), offset)
     return np.asarray(pose_m, dtype=np.float64) @ delta

@@ -8,9 +8,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..arm.ur_pose import matrix_to_pose_vector, pose_vector_to_matrix
 from ..errors import InputError
-from ..sim.poses import invert_pose, pose_mm_to_m
+from ..pose import invert_pose, matrix_to_pose_vector, pose_mm_to_m, pose_vector_to_matrix
 
 
 @dataclass(frozen=True, eq=False)

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RecordingError
+from ..pose import rotation_angle
 from .plan import PlannedView
 
 log = logging.getLogger(__name__)
@@ -57,8 +58,7 @@ def matches(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether two (4, 4) poses (metres) are the same viewpoint within the tolerances."""
     if np.linalg.norm(a[:3, 3] - b[:3, 3]) > POSE_TOLERANCE_M:
         return False
-    cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1.0) / 2.0
-    return float(np.arccos(np.clip(cos, -1.0, 1.0))) <= ANGLE_TOLERANCE_RAD
+    return rotation_angle(a, b) <= ANGLE_TOLERANCE_RAD
 
 
 def completed_views(session: str | Path, plan: list[PlannedView],

@@ -1,4 +1,4 @@
-"""The concealed-effect benchmark of the mismatch tool (SPEC §5 "proof on concealed data").
+"""The concealed-effect benchmark of the mismatch tool (docs/mismatch.md, "5. Benchmark").
 
 For each case a "real" sweep is generated (:mod:`.cases`) carrying a random concealed effect
 with random parameters, nothing (a control), or two effects. The frames are written as an

@@ -1,7 +1,8 @@
 """Real frames for the mismatch tool: loading, checks, camera motion and the train/held-out split.
 
-Frames come from a recording directory / ``.mcap`` file or the NPZ interchange (SPEC §3). Every
-frame needs its reference (the reference *is* the scene the simulator predicts from).
+Frames come from a recording directory / ``.mcap`` file or the NPZ interchange
+(docs/recordings.md). Every frame needs its reference (the reference *is* the scene the simulator
+predicts from).
 """
 
 from __future__ import annotations
@@ -11,10 +12,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import MismatchError, TofMpdError
 from ..frame import ToFFrame
+from ..pose import matrix_to_rotvec
 from ..sim.tof import CameraMotion
 
 #: frames further apart than this are separate stops of the arm: the camera is taken at rest
@@ -89,7 +90,7 @@ def camera_motion(frames: Sequence[ToFFrame]) -> list[CameraMotion | None]:
             continue
         rot_i = f.pose[:3, :3]
         linear = rot_i.T @ (b.pose[:3, 3] - a.pose[:3, 3]) * 1e3 / dt
-        rel = Rotation.from_matrix(a.pose[:3, :3].T @ b.pose[:3, :3]).as_rotvec()
+        rel = matrix_to_rotvec(a.pose[:3, :3].T @ b.pose[:3, :3])
         # rel is in frame a's axes; frames are close, so it is taken as frame i's
         angular = rel / dt
         out.append(CameraMotion(tuple(float(v) for v in linear),

@@ -25,11 +25,11 @@ from typing import Any
 
 import numpy as np
 from scipy import ndimage, signal
-from scipy.spatial.transform import Rotation
 
 from ..camera import Intrinsics
 from ..errors import MismatchError
 from ..frame import ToFFrame
+from ..pose import matrix_to_rotvec, rotvec_to_matrix
 from ..sim.surface import SurfaceImage
 from ..sim.tof import EFFECTS, CameraMotion, ToFConfig
 from ..sim.tof.context import RenderContext
@@ -41,7 +41,6 @@ from ..sim.tof.phasor import direct_phasor, phase_per_mm
 from ..sim.tof.reference import surface_from_reference
 from ..sim.tof.reference_world import world_from_surface
 from ..sim.tof.transport import indirect_phasor
-from ..sim.tof.warp import rotation_matrix
 
 #: pipeline of the reference render in order; ``None`` marks the direct-return step
 PIPELINE: tuple[str | None, ...] = (
@@ -181,7 +180,7 @@ def moved_direct_phasor(surface: SurfaceImage, rotvec: np.ndarray, translation_m
     Returns:
         (H, W) complex128 direct phasor and (H, W) bool "mostly covered by a surface".
     """
-    rot = rotation_matrix(np.asarray(rotvec, dtype=np.float64))
+    rot = rotvec_to_matrix(np.asarray(rotvec, dtype=np.float64))
     t = np.asarray(translation_mm, dtype=np.float64)
     k = surface.intrinsics
     h, w = k.shape
@@ -257,8 +256,8 @@ def _compose(moves: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np
     rot, t = np.eye(3), np.zeros(3)
     for rv, tr in moves:
         t = t + rot @ np.asarray(tr, dtype=np.float64)
-        rot = rot @ rotation_matrix(rv)
-    return Rotation.from_matrix(rot).as_rotvec(), t
+        rot = rot @ rotvec_to_matrix(rv)
+    return matrix_to_rotvec(rot), t
 
 
 def _geometry_move(name: str, params: Any, motion: CameraMotion | None

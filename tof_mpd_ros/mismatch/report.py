@@ -20,7 +20,8 @@ CONFIG_JSON = "fitted_config.json"
 
 
 def to_json(analysis: Analysis) -> dict[str, Any]:
-    """The JSON document of a report (SPEC §5 fields first)."""
+    """The JSON document of a report: the answer first (selected effects, verdict), then the
+    evidence (docs/mismatch.md lists the fields)."""
     m = analysis.metrics
     return _clean({
         "selected": analysis.selected,

@@ -39,7 +39,6 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from ..arm.isolated import IsolatedArm
-from ..arm.ur_pose import pose_vector_to_matrix
 from ..camera import Intrinsics
 from ..collection import session
 from ..collection.hand_eye_detect import CalibrationBoard
@@ -56,6 +55,7 @@ from ..collection.runner import CaptureFunction, RunResult, WriteFunction, run_p
 from ..errors import CaptureError, InputError, TofMpdError
 from ..frame import ToFFrame
 from ..image_encoding import amplitude_to_float, depth_to_mm, image_to_array
+from ..pose import pose_vector_to_matrix
 from .cell_topics import CELL_TOPICS, RETIRED_TOPIC_PARAMETERS
 from .parameters import ParameterSpec as P
 from .parameters import declare, refuse_retired_parameters

@@ -28,16 +28,15 @@ from geometry_msgs.msg import Pose, PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
-from ..arm.ur_pose import pose_vector_to_matrix
 from ..camera import Intrinsics
 from ..collection.hand_eye_detect import CalibrationBoard
 from ..collection.hand_eye_plan import default_sl_intrinsics, hand_eye_plan_views
 from ..collection.hand_eye_sim import render_sl_image, simulate_tof_capture
 from ..frame import ToFFrame
 from ..image_encoding import mm_to_depth
+from ..pose import invert_pose, pose_m_to_mm, pose_vector_to_matrix, rotation_angle
 from ..sim.cell import CameraModel, SimCell
 from ..sim.dataset import scene_rng
-from ..sim.poses import invert_pose, pose_m_to_mm
 from ..sim.scene import make_scene
 from ..sim.structured_light import StructuredLightConfig
 from ..sim.viewpoints import ViewpointConfig, plan_viewpoints
@@ -294,6 +293,5 @@ def _same_pose(a_mm: np.ndarray, b_mm: np.ndarray, tol_mm: float = 0.5,
     """Whether two (4, 4) poses (mm) are within ``tol_mm`` and ``tol_rad`` of each other."""
     if np.linalg.norm(a_mm[:3, 3] - b_mm[:3, 3]) > tol_mm:
         return False
-    cos = (np.trace(a_mm[:3, :3].T @ b_mm[:3, :3]) - 1.0) / 2.0
-    return float(np.arccos(np.clip(cos, -1.0, 1.0))) <= tol_rad
+    return rotation_angle(a_mm, b_mm) <= tol_rad
 

@@ -4,7 +4,8 @@ interchange.
 * :class:`RecordingWriter` writes ToF frames (radial range, amplitude, CameraInfo, SL reference,
   arm pose) as CDR messages; :class:`RecordingReader` streams them back as
   :class:`~tof_mpd_ros.frame.ToFFrame` objects, also from files a crashed writer left behind.
-* :func:`load_npz`, :func:`save_npz`, :func:`import_npz`, :func:`export_npz`: SPEC §3 interchange.
+* :func:`load_npz`, :func:`save_npz`, :func:`import_npz`, :func:`export_npz`: the NPZ interchange
+  (docs/recordings.md).
 * :func:`iter_frames`, :func:`count_frames`, :func:`write_frames`: "a recording or an NPZ" file,
   told apart by :func:`is_npz`.
 

@@ -1,4 +1,4 @@
-"""The NumPy interchange (SPEC §3): load/save ``.npz`` files and convert them to/from recordings.
+"""The NPZ interchange (docs/recordings.md): load/save ``.npz`` files, convert to/from recordings.
 
 One ``.npz`` holds N frames of one camera:
 

@@ -1,4 +1,5 @@
-"""MD-Train / MD-Test-like datasets from the simulated cell (SPEC §2 "Data", §4).
+"""MD-Train / MD-Test-like datasets from the simulated cell (docs/method.md, "Data and units";
+the cell: docs/physics.md).
 
 A dataset directory holds three recordings (rosbag2 MCAP) and a summary:
 

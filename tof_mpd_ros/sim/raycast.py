@@ -8,7 +8,7 @@ objects), which is kept as the test oracle: both give bit-identical hits.
 
 Units: origins, hit distances and the scene in **millimetres**, base frame; directions are unit
 vectors. Camera poses passed to :func:`render_surface` are camera-to-base with the translation in
-**millimetres** (convert a ROS pose in metres with :func:`~tof_mpd_ros.sim.poses.pose_m_to_mm`).
+**millimetres** (convert a ROS pose in metres with :func:`~tof_mpd_ros.pose.pose_m_to_mm`).
 """
 
 from __future__ import annotations
@@ -22,9 +22,9 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputError
+from ..pose import rotate
 from ..validation import check_array
 from .objects import ObjectSpec
-from .poses import rotate
 from .scene import PlacedObject, Scene, Table
 from .surface import SurfaceImage
 

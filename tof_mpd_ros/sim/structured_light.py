@@ -25,8 +25,8 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputError
+from ..pose import invert_pose, make_pose, rot_z, transform_points
 from ..validation import check_array
-from .poses import invert_pose, make_pose, rot_z, transform_points
 from .raycast import camera_rays, render_surface, sl_ranges, visible_from
 from .scene import Scene
 

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ArmError
+from ..pose import invert_pose, make_pose
 from ..validation import check_array
-from .poses import invert_pose, make_pose
 
 TWO_PI = 2.0 * math.pi
 

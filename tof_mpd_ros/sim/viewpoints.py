@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ArmError, InputError, SimulationError
-from .poses import look_at, pose_mm_to_m
+from ..pose import look_at, pose_mm_to_m
 from .scene import Scene
 from .ur5e import (
     DEFAULT_T_FLANGE_CAMERA_M,

@@ -1,4 +1,4 @@
-"""AMCW Time-of-Flight measurement physics (SPEC §4).
+"""AMCW Time-of-Flight measurement physics (docs/physics.md).
 
 Each physical effect is a separate, named, parameterised module (``EFFECTS``) switched on or off
 in a :class:`ToFConfig`. Entry points:

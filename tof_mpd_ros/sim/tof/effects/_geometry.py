@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ....pose import rotvec_to_matrix
 from ...surface import SurfaceImage
 from ..context import RenderContext
-from ..warp import move_camera, rotation_matrix
+from ..warp import move_camera
 
 
 def moved_surface(surface: SurfaceImage, rotvec: np.ndarray, translation_mm: np.ndarray,
@@ -19,7 +20,7 @@ def moved_surface(surface: SurfaceImage, rotvec: np.ndarray, translation_mm: np.
     if not (np.any(rotvec) or np.any(translation_mm)):
         return surface
     shift = np.eye(4)
-    shift[:3, :3] = rotation_matrix(rotvec)
+    shift[:3, :3] = rotvec_to_matrix(rotvec)
     shift[:3, 3] = translation_mm
     ctx.camera_shift = ctx.camera_shift @ shift
     return move_camera(surface, rotvec, translation_mm)
