@@ -31,8 +31,7 @@ from ..pose import make_pose, pose_mm_to_m, rotvec_to_matrix
 from ..sim.raycast import render_surface
 from ..sim.scene import Scene, make_scene
 from ..sim.structured_light import FusionConfig, reference_range
-from ..sim.tof import ToFConfig, render_tof
-from ..sim.tof.effects.wiggling import wiggle_mm
+from ..sim.tof import ToFConfig, render_tof, wiggle_mm
 from ..sim.viewpoints import view_pose_mm
 from .profile import with_amplitude_units
 

@@ -48,8 +48,7 @@ import numpy as np
 from ..camera import Intrinsics
 from ..errors import MismatchError
 from ..frame import DEFAULT_MOD_FREQ_HZ, ToFFrame
-from ..sim.tof import ToFConfig
-from ..sim.tof.config import DEFAULT_LIGHT_POWER
+from ..sim.tof import DEFAULT_LIGHT_POWER, ToFConfig
 from .profile import CELL_DISTANCE_MM, with_scene_distance
 
 #: planes closer than this to parallel form no crease (neighbouring panels, or two fits of one
@@ -346,7 +345,7 @@ def _normal_agrees(range_mm: np.ndarray, intrinsics: Intrinsics, planes: np.ndar
                    max_deg: float) -> np.ndarray:
     """(H, W, P) bool: the pixel's local surface normal lies within ``max_deg`` of plane p's
     (False where the range image gives no normal)."""
-    from ..sim.tof.reference import normals_from_range
+    from ..sim.tof import normals_from_range
     normals = normals_from_range(range_mm, intrinsics)
     with np.errstate(invalid="ignore"):
         return np.abs(normals @ planes[:, :3].T) >= np.cos(np.radians(max_deg))
@@ -501,7 +500,7 @@ def _to_sim_units(amplitude: np.ndarray, reference_mm: np.ndarray, intrinsics: I
                   light_power: float = KINECT_LIGHT_POWER) -> np.ndarray:
     """Scale raw amplitude so that the planes' median albedo under ``light_power`` is
     ``PLANE_ALBEDO`` (the sensor's gain is unknown; only ratios are physical)."""
-    from ..sim.tof.reference import surface_from_reference
+    from ..sim.tof import surface_from_reference
     surf = surface_from_reference(reference_mm, intrinsics, 1.0)
     cos = np.clip(-np.einsum("hwk,hwk->hw", surf.normal, intrinsics.ray_directions()), 0.05, 1)
     unit = light_power * cos / surf.range_mm ** 2

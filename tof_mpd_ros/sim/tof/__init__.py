@@ -14,13 +14,14 @@ in a :class:`ToFConfig`. Entry points:
 
 from __future__ import annotations
 
-from .config import EffectConfig, ToFConfig
+from .config import DEFAULT_LIGHT_POWER, EffectConfig, ToFConfig
 from .context import CameraMotion, RenderContext
 from .effect import CameraMoveEffect, Effect, NoParams, ParamSpec, param
 from .effects.noise import phasor_noise_std
+from .effects.wiggling import wiggle_mm
 from .phasor import SPEED_OF_LIGHT_MM_S, ambiguity_range_mm, direct_phasor, phase_per_mm
 from .pipeline import DIRECT, STAGE_ORDER, Action, Step, frame_context, pipeline_steps, run_step
-from .reference import surface_from_reference
+from .reference import normals_from_range, surface_from_reference
 from .registry import (
     EFFECTS,
     NOMINAL_EFFECTS,
@@ -32,11 +33,11 @@ from .registry import (
 from .render import ToFMeasurement, pixel_intrinsics, render_from_reference, render_tof
 
 __all__ = [
-    "DIRECT", "EFFECTS", "NOMINAL_EFFECTS", "SPEED_OF_LIGHT_MM_S", "STAGE_ORDER", "Action",
-    "CameraMotion", "CameraMoveEffect", "Effect", "EffectConfig", "NoParams", "ParamSpec",
-    "RenderContext", "Step", "ToFConfig", "ToFMeasurement", "ambiguity_range_mm", "direct_phasor",
-    "effect_names", "frame_context", "nominal_effects", "param", "phase_per_mm",
-    "phasor_noise_std", "pipeline_steps", "pixel_intrinsics", "register_effect",
-    "render_from_reference", "render_tof", "run_step", "surface_from_reference",
-    "unregister_effect",
+    "DEFAULT_LIGHT_POWER", "DIRECT", "EFFECTS", "NOMINAL_EFFECTS", "SPEED_OF_LIGHT_MM_S",
+    "STAGE_ORDER", "Action", "CameraMotion", "CameraMoveEffect", "Effect", "EffectConfig",
+    "NoParams", "ParamSpec", "RenderContext", "Step", "ToFConfig", "ToFMeasurement",
+    "ambiguity_range_mm", "direct_phasor", "effect_names", "frame_context", "nominal_effects",
+    "normals_from_range", "param", "phase_per_mm", "phasor_noise_std", "pipeline_steps",
+    "pixel_intrinsics", "register_effect", "render_from_reference", "render_tof", "run_step",
+    "surface_from_reference", "unregister_effect", "wiggle_mm",
 ]
