@@ -44,7 +44,9 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={PACKAGE: ["py.typed", "data/*.npz", "data/*.json", "data/*.yaml"]},
+    # templates/: the reports' Jinja2 pages, stylesheet and prose (tof_mpd_ros.templates)
+    package_data={PACKAGE: ["py.typed", "data/*.npz", "data/*.json", "data/*.yaml",
+                            "templates/*.html", "templates/*.css", "templates/*.txt"]},
     data_files=data_files,
     python_requires=">=3.10",
     install_requires=[
@@ -63,6 +65,7 @@ setup(
         "pyyaml>=6",
         "tqdm>=4.66",
         "matplotlib>=3.8",
+        "jinja2>=3.1",
     ],
     extras_require={
         "ros": ROS_WHEELS,
