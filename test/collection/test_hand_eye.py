@@ -12,6 +12,8 @@ import math
 import numpy as np
 import pytest
 
+from tof_mpd_ros.arm.tool import DEFAULT_T_FLANGE_CAMERA_M
+from tof_mpd_ros.arm.ur5e import solve_ik
 from tof_mpd_ros.cli.main import main
 from tof_mpd_ros.collection.hand_eye import (
     CalibrationBoard,
@@ -49,7 +51,6 @@ from tof_mpd_ros.pose import (
 )
 from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.structured_light import StructuredLightConfig
-from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M, solve_ik
 
 BOARD = CalibrationBoard()
 N_VIEWS = 8

@@ -19,6 +19,7 @@ rclpy = pytest.importorskip("rclpy")
 
 from ros_harness import domain_id, start_node, stop_node  # noqa: E402
 
+from tof_mpd_ros.arm.tool import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
 from tof_mpd_ros.cli.main import main  # noqa: E402
 from tof_mpd_ros.collection import session  # noqa: E402
 from tof_mpd_ros.collection.hand_eye import pose_difference  # noqa: E402
@@ -30,7 +31,6 @@ from tof_mpd_ros.collection.hand_eye_sim import perturb_pose  # noqa: E402
 from tof_mpd_ros.pose import matrix_to_pose_vector, pose_mm_to_m  # noqa: E402
 from tof_mpd_ros.recordings import RecordingReader, convert  # noqa: E402
 from tof_mpd_ros.sim.structured_light import StructuredLightConfig  # noqa: E402
-from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
 
 # This run's own domains (test/conftest.py); the scene sim_cell starts early (its first frame
 # takes a while) on a domain of its own.

@@ -19,6 +19,7 @@ from oracles.structured_light_reference import (
 )
 from sim_helpers import small_camera
 
+from tof_mpd_ros.arm.viewpoints import ViewpointConfig
 from tof_mpd_ros.pose import invert_pose, rotate, transform_points
 from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.checkerboard import calibration_poses, render_checkerboard
@@ -34,7 +35,7 @@ from tof_mpd_ros.sim.structured_light import (
     sl_scan,
 )
 from tof_mpd_ros.sim.tof import ToFConfig, render_tof
-from tof_mpd_ros.sim.viewpoints import ViewpointConfig, plan_viewpoints
+from tof_mpd_ros.sim.viewpoints import plan_viewpoints
 
 
 def _assert_same_hits(a: RayHits, b: RayHits) -> None:

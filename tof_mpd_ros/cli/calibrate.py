@@ -137,12 +137,12 @@ def run_hand_eye(args: argparse.Namespace) -> int:
 
 
 def _simulate_hand_eye(path: Path, views: int, seed: int) -> None:
+    from ..arm.tool import DEFAULT_T_FLANGE_CAMERA_M
     from ..collection.hand_eye_sim import (
         HandEyeSimConfig,
         perturb_pose,
         simulate_hand_eye_recording,
     )
-    from ..sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M
 
     if path.exists():
         raise RecordingError(f"{path} exists; --simulate refuses to overwrite a recording")

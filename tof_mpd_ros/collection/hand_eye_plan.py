@@ -19,6 +19,9 @@ from itertools import combinations, pairwise
 
 import numpy as np
 
+from ..arm.tool import DEFAULT_T_FLANGE_CAMERA_M, default_sl_to_tof_mm
+from ..arm.ur5e import HOME_JOINTS, forward_kinematics
+from ..arm.viewpoints import ViewpointConfig, reach_camera_pose
 from ..camera import PAPER_CROP, Intrinsics
 from ..errors import ArmError, CalibrationError, InputError
 from ..pose import (
@@ -29,9 +32,6 @@ from ..pose import (
     pose_mm_to_m,
     transform_points,
 )
-from ..sim.structured_light import StructuredLightConfig
-from ..sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M, HOME_JOINTS, forward_kinematics
-from ..sim.viewpoints import ViewpointConfig, reach_camera_pose
 from ..validation import check_array
 from .hand_eye_detect import CalibrationBoard
 from .plan import PlannedView
@@ -48,7 +48,7 @@ def default_sl_intrinsics() -> Intrinsics:
 
 
 def _default_sl_to_tof_m() -> np.ndarray:
-    return pose_mm_to_m(StructuredLightConfig().sl_to_tof_mm)
+    return pose_mm_to_m(default_sl_to_tof_mm())
 
 
 @dataclass(frozen=True, eq=False)

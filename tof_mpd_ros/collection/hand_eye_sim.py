@@ -22,6 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..arm.tool import DEFAULT_T_FLANGE_CAMERA_M
 from ..camera import Intrinsics
 from ..errors import InputError
 from ..frame import ToFFrame
@@ -31,7 +32,6 @@ from ..sim.checkerboard import CheckerboardConfig, render_checkerboard
 from ..sim.structured_light import StructuredLightConfig
 from ..sim.surface import SurfaceImage
 from ..sim.tof import render_tof
-from ..sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M
 from .hand_eye import HandEyeCapture
 from .hand_eye_detect import CalibrationBoard
 from .hand_eye_io import write_hand_eye_recording

@@ -50,7 +50,7 @@ from ..collection.hand_eye_io import (
     write_hand_eye_view,
 )
 from ..collection.hand_eye_plan import hand_eye_plan_views
-from ..collection.plan import PlannedView, load_plan, sim_plan
+from ..collection.plan import PlannedView, load_plan
 from ..collection.runner import CaptureFunction, RunResult, WriteFunction, run_plan
 from ..errors import CaptureError, InputError, TofMpdError
 from ..frame import ToFFrame
@@ -354,6 +354,9 @@ class CollectorNode(LifecycleNode):
             board_m = pose_vector_to_matrix(np.asarray(p["board_pose"], dtype=np.float64))
             return hand_eye_plan_views(board_m, p["hand_eye_views"], p["seed"], self.hand_eye_m,
                                        self._board())
+        # The simulator loads only for the plan of a simulated scene, never on a real cell.
+        from ..sim.viewpoints import sim_plan
+
         return sim_plan(p["seed"], p["split"], p["scene"], p["views"], self.hand_eye_m)
 
     def on_activate(self, state: State) -> TransitionCallbackReturn:

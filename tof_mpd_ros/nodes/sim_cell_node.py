@@ -28,6 +28,7 @@ from geometry_msgs.msg import Pose, PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
+from ..arm.viewpoints import ViewpointConfig
 from ..camera import Intrinsics
 from ..collection.hand_eye_detect import CalibrationBoard
 from ..collection.hand_eye_plan import default_sl_intrinsics, hand_eye_plan_views
@@ -39,7 +40,7 @@ from ..sim.cell import CameraModel, SimCell
 from ..sim.dataset import scene_rng
 from ..sim.scene import make_scene
 from ..sim.structured_light import StructuredLightConfig
-from ..sim.viewpoints import ViewpointConfig, plan_viewpoints
+from ..sim.viewpoints import plan_viewpoints
 from .cell_topics import CELL_TOPICS, RETIRED_TOPIC_PARAMETERS
 from .parameters import ParameterSpec as P
 from .parameters import declare, refuse_retired_parameters

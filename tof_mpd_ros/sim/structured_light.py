@@ -23,17 +23,13 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
+from ..arm.tool import default_sl_to_tof_mm
 from ..camera import Intrinsics
 from ..errors import InputError
 from ..pose import invert_pose, make_pose, rot_z, transform_points
 from ..validation import check_array
 from .raycast import camera_rays, sl_ranges
 from .scene import Scene
-
-
-def _default_sl_to_tof_mm() -> np.ndarray:
-    # SL camera 50 mm beside the ToF camera (optical axes parallel).
-    return make_pose(np.eye(3), np.array([-50.0, 0.0, 0.0]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,7 +49,7 @@ class StructuredLightConfig:
     """
 
     intrinsics: Intrinsics = field(default_factory=lambda: Intrinsics.from_fov(240, 180, 65.0))
-    sl_to_tof_mm: np.ndarray = field(default_factory=_default_sl_to_tof_mm)
+    sl_to_tof_mm: np.ndarray = field(default_factory=default_sl_to_tof_mm)
     projector_in_sl_mm: tuple[float, float, float] = (-75.0, 0.0, 0.0)
     noise_mm: float = 0.5
     max_incidence_deg: float = 80.0
