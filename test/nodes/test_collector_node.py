@@ -36,7 +36,7 @@ def sim_cell(tmp_path_factory: pytest.TempPathFactory):
 
 def assert_trainable(frames: list) -> None:
     """The recorded frames train F and G, and the model corrects a recorded frame."""
-    from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+    from tof_mpd_ros.calibration import IntrinsicCalibration
     from tof_mpd_ros.correction.pipeline import correct
     from tof_mpd_ros.training.trainer import TrainConfig, train
 
