@@ -391,6 +391,8 @@ def _load_checkpoint(path: Path, nets: _Nets, opt: torch.optim.Optimizer, finger
                            f"{type(err).__name__}: {err}") from err
 
 
+# ~120 lines (40 of docstring): one linear recipe (prepare, build, resume, epochs, pick, save)
+# over shared state whose steps are already helpers; splitting it would only pass that state on.
 def train(
     frames: Sequence[ToFFrame],
     calibration: IntrinsicCalibration,
