@@ -241,7 +241,7 @@ def main() -> None:
     os.environ.setdefault("ROS_LOG_DIR", log_dir)
     import torch
 
-    from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+    from tof_mpd_ros.calibration import IntrinsicCalibration
     from tof_mpd_ros.correction.depth_stream import DepthStreamCorrector
     from tof_mpd_ros.correction.pipeline import CorrectionModel
     from tof_mpd_ros.correction.weights import load_weights, save_weights

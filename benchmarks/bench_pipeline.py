@@ -53,12 +53,12 @@ import numba
 import numpy as np
 import torch
 
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction import edges as edges_module
 from tof_mpd_ros.correction import geodesic as geodesic_module
 from tof_mpd_ros.correction import networks as networks_module
 from tof_mpd_ros.correction import pipeline as pipeline_module
 from tof_mpd_ros.correction import reference_pipeline as ref
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
 from tof_mpd_ros.machine import cpu_model, cpuinfo
 

@@ -24,7 +24,7 @@ from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
 
 set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
 
-from tof_mpd_ros.cli.calibrate import load_calibration
+from tof_mpd_ros.calibration import load_calibration
 from tof_mpd_ros.evaluation.components import evaluate_model
 from tof_mpd_ros.recordings import iter_frames
 from tof_mpd_ros.training import TrainConfig, train

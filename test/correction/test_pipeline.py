@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import tof_mpd_ros.correction as correction_pkg
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig
 from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
 from tof_mpd_ros.errors import InputError

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.correction import geodesic
 from tof_mpd_ros.correction import reference_pipeline as ref
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig, encode_frame
 from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
 from tof_mpd_ros.errors import InputError

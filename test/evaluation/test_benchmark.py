@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.camera import Intrinsics
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig
 from tof_mpd_ros.correction.pipeline import CorrectionModel
 from tof_mpd_ros.errors import InputError

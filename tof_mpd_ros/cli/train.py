@@ -79,8 +79,9 @@ def load_training_frames(paths: list[Path]) -> list:
 
 
 def run_train(args: argparse.Namespace) -> int:
+    from ..calibration import load_calibration
     from ..training.trainer import TrainConfig, train
-    from .calibrate import fit_from_file, load_calibration
+    from .calibrate import fit_from_file
 
     calibration = (load_calibration(args.calibration) if args.calibration is not None
                    else fit_from_file(args.calibration_captures)[0])

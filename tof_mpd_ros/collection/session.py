@@ -74,15 +74,15 @@ def completed_views(session: str | Path, plan: list[PlannedView],
 
 
 # ------------------------------------------------------------------ calibration sessions
-# A hand-eye calibration session holds calibration recordings (.hand_eye_io): their frames
-# carry the TCP pose but no camera pose (the hand-eye transform is what they are for), so its
+# A hand-eye calibration session holds calibration recordings (calibration.hand_eye_io): their
+# frames carry the TCP pose but no camera pose (the hand-eye transform is what they are for), so its
 # views are matched on the TCP pose.
 
 
 def is_calibration_part(part: str | Path) -> bool | None:
     """Whether a part is a hand-eye calibration recording; None if it cannot be read."""
+    from ..calibration.hand_eye_io import KEY_BOARD
     from ..recordings import RecordingReader
-    from .hand_eye_io import KEY_BOARD
 
     try:
         with RecordingReader(part) as reader:
@@ -100,7 +100,7 @@ def completed_calibration_views(session: str | Path,
                                 plan: list[PlannedView]) -> dict[int, int]:
     """How many complete calibration views (TCP pose, ToF amplitude and SL image) the session
     holds for each planned view index, matched on the TCP pose."""
-    from .hand_eye_io import read_hand_eye_recording
+    from ..calibration.hand_eye_io import read_hand_eye_recording
 
     counts = {view.index: 0 for view in plan}
     for part in parts(session):

@@ -50,10 +50,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..calibration.intrinsic import IntrinsicCalibration
 from ..errors import InputError
 from ..thread_pools import shared_pool
 from ..validation import check_array
-from .calibration import IntrinsicCalibration
 from .encoding import (
     ColumnEncoding,
     EncodingConfig,

@@ -48,8 +48,8 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..calibration.intrinsic import IntrinsicCalibration
 from ..errors import InputError
-from .calibration import IntrinsicCalibration
 from .edges import edge_map_from_responses
 from .encoding import EncodingConfig
 from .geodesic import DEFAULT_MAX_STEPS

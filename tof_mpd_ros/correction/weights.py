@@ -30,9 +30,9 @@ import torch
 
 from .. import __version__
 from ..atomic_file import write_atomically
+from ..calibration.intrinsic import IntrinsicCalibration
 from ..errors import TofMpdError, WeightsError
 from ..npz_file import read_npz
-from .calibration import IntrinsicCalibration
 from .encoding import EncodingConfig
 from .networks import BoundaryNets, RangeRecoveryNet
 from .pipeline import CorrectionModel, GeodesicParams

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from ..arm.viewpoints import view_pose_mm
 from ..camera import Intrinsics
 from ..frame import ToFFrame
 from ..pose import make_pose, pose_mm_to_m, rotvec_to_matrix
@@ -32,7 +33,6 @@ from ..sim.raycast import render_surface
 from ..sim.scene import Scene, make_scene
 from ..sim.structured_light import FusionConfig, reference_range
 from ..sim.tof import ToFConfig, render_tof, wiggle_mm
-from ..sim.viewpoints import view_pose_mm
 from .profile import with_amplitude_units
 
 #: effects the benchmark conceals; ``phase_wrapping`` is nominal and has no parameter, and at

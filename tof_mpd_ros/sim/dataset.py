@@ -33,11 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..arm.viewpoints import ViewpointConfig
 from ..frame import ToFFrame
 from .cell import SimCell
 from .checkerboard import calibration_poses
 from .scene import make_scene
-from .viewpoints import ViewpointConfig, plan_viewpoints
+from .viewpoints import plan_viewpoints
 
 log = logging.getLogger(__name__)
 

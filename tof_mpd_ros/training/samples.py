@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as tnf
 from scipy.ndimage import binary_dilation
 
-from ..correction.calibration import IntrinsicCalibration
+from ..calibration.intrinsic import IntrinsicCalibration
 from ..correction.encoding import EncodingConfig, encode_patches, prepare_planes
 from ..errors import InputError
 from ..frame import ToFFrame

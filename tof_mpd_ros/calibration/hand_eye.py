@@ -12,13 +12,14 @@ Frames and units: poses are (4, 4) float64 ``T_a_b`` mapping frame ``b`` to fram
 translations in **metres** (they face ROS and ``ur_rtde``). ``camera_to_flange_m`` is the ToF
 optical frame in the flange (``tool0``) frame, the hand-eye transform a recording stores;
 ``sl_to_tof_m`` is the SL camera optical frame in the ToF optical frame (the convention of
-:class:`~tof_mpd_ros.sim.structured_light.StructuredLightConfig`). The board frame is that of
+:func:`~tof_mpd_ros.arm.tool.default_sl_to_tof_mm`). The board frame is that of
 :mod:`tof_mpd_ros.sim.checkerboard`: origin at the centre of the squares, x along the rows, y down
 the columns, z into the board (the printed face looks along -z).
 
-:mod:`.hand_eye_detect` describes and finds the board; :mod:`.hand_eye_plan` plans the views;
-:mod:`.hand_eye_io` reads and writes calibration recordings; :mod:`.hand_eye_sim` renders them
-in the simulated cell.
+:mod:`.hand_eye_board` describes and finds the board; :mod:`.hand_eye_io` reads and writes
+calibration recordings. The views are planned by the collection
+(:mod:`tof_mpd_ros.collection.hand_eye_plan`, the arm's capture plan) and simulated by
+:mod:`tof_mpd_ros.sim.hand_eye`.
 """
 
 from __future__ import annotations
@@ -44,22 +45,18 @@ from ..pose import (
     rotvec_to_matrix,
 )
 from ..validation import check_array
-from .hand_eye_detect import BoardDetection, CalibrationBoard, detect_board
-from .hand_eye_plan import HandEyePlanConfig, hand_eye_plan, rotation_axis_spread_deg
+from .hand_eye_board import BoardDetection, CalibrationBoard, detect_board
 
 __all__ = [
     "MIN_VIEWS",
     "CalibrationBoard",
     "HandEyeCapture",
-    "HandEyePlanConfig",
     "HandEyeResult",
     "ViewFailure",
     "available_methods",
     "ax_xb_residuals",
-    "hand_eye_plan",
     "linear_hand_eye",
     "pose_difference",
-    "rotation_axis_spread_deg",
     "solve_hand_eye",
 ]
 

@@ -1,5 +1,6 @@
 """Universal Robots UR5e kinematics: DH forward kinematics, analytic inverse kinematics, and the
-camera on the flange through a hand-eye transform.
+camera on the flange through a hand-eye transform. The package's one implementation of the arm's
+kinematics, used by the simulated arm session, the viewpoint and hand–eye plans and the simulator.
 
 Units: **metres and radians** (these poses face ROS and ``ur_rtde``). The base frame is the
 frame of UR's DH model, the one the controller reports TCP poses in (ROS ``base``); the flange
@@ -18,8 +19,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import ArmError
-from ..pose import invert_pose, make_pose
+from ..pose import invert_pose
 from ..validation import check_array
+from .tool import DEFAULT_T_FLANGE_CAMERA_M
 
 TWO_PI = 2.0 * math.pi
 
@@ -58,9 +60,6 @@ class URParams:
 
 
 UR5E = URParams()
-
-# Camera ~60 mm ahead of the flange looking along the tool z axis (optical z = tool z).
-DEFAULT_T_FLANGE_CAMERA_M = make_pose(np.eye(3), np.array([0.0, 0.0, 0.060]))
 
 # Elbow up, tool pointing straight down in front of the robot (+x): a neutral seed for IK.
 HOME_JOINTS = np.array([math.pi, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0])

@@ -7,10 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from tof_mpd_ros.errors import ArmError
-from tof_mpd_ros.pose import make_pose, pose_m_to_mm, pose_mm_to_m, rot_x
-from tof_mpd_ros.sim.ur5e import (
-    DEFAULT_T_FLANGE_CAMERA_M,
+from tof_mpd_ros.arm.tool import DEFAULT_T_FLANGE_CAMERA_M
+from tof_mpd_ros.arm.ur5e import (
     HOME_JOINTS,
     UR5E,
     URParams,
@@ -20,6 +18,8 @@ from tof_mpd_ros.sim.ur5e import (
     inverse_kinematics,
     solve_ik,
 )
+from tof_mpd_ros.errors import ArmError
+from tof_mpd_ros.pose import make_pose, pose_m_to_mm, pose_mm_to_m, rot_x
 
 
 def test_zero_joints_by_hand() -> None:

@@ -8,7 +8,8 @@ The board (squares on a white sheet, lying on a darker table) is rendered into
 * the SL camera as an intensity image: Lambertian shading under light from the camera,
   supersampled, with a little Gaussian noise, 8-bit.
 
-The arm follows :func:`.hand_eye_plan.hand_eye_plan`; the TCP poses are exact forward
+The arm follows :func:`~tof_mpd_ros.collection.hand_eye_plan.hand_eye_plan`; the TCP poses are
+exact forward
 kinematics. The *true* camera-to-flange and SL-to-ToF transforms are parameters, so tests can
 move them off the defaults and check that the calibration finds them.
 
@@ -22,20 +23,20 @@ from pathlib import Path
 
 import numpy as np
 
+from ..arm.tool import DEFAULT_T_FLANGE_CAMERA_M
+from ..calibration.hand_eye import HandEyeCapture
+from ..calibration.hand_eye_board import CalibrationBoard
+from ..calibration.hand_eye_io import write_hand_eye_recording
 from ..camera import Intrinsics
+from ..collection.hand_eye_plan import HandEyePlanConfig, default_sl_intrinsics, hand_eye_plan
 from ..errors import InputError
 from ..frame import ToFFrame
 from ..pose import invert_pose, make_pose, pose_m_to_mm, pose_mm_to_m, rotvec_to_matrix
-from ..sim.cell import SimCell
-from ..sim.checkerboard import CheckerboardConfig, render_checkerboard
-from ..sim.structured_light import StructuredLightConfig
-from ..sim.surface import SurfaceImage
-from ..sim.tof import render_tof
-from ..sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M
-from .hand_eye import HandEyeCapture
-from .hand_eye_detect import CalibrationBoard
-from .hand_eye_io import write_hand_eye_recording
-from .hand_eye_plan import HandEyePlanConfig, default_sl_intrinsics, hand_eye_plan
+from .cell import SimCell
+from .checkerboard import CheckerboardConfig, render_checkerboard
+from .structured_light import StructuredLightConfig
+from .surface import SurfaceImage
+from .tof import render_tof
 
 # Board centre on the table in front of the robot (the scenes' workspace centre), flat: board
 # x along base +x, board z (into the board) pointing down into the table.
@@ -78,6 +79,23 @@ class HandEyeSimConfig:
     period_ns: int = 100_000_000
 
 
+def board_squares(board: CalibrationBoard) -> CheckerboardConfig:
+    """The board's squares, for :func:`~.checkerboard.render_checkerboard`."""
+    return CheckerboardConfig(n_cols=board.n_cols, n_rows=board.n_rows,
+                              square_mm=board.square_mm,
+                              dark_albedo=(board.dark_albedo, board.dark_albedo),
+                              bright_albedo=(board.bright_albedo, board.bright_albedo))
+
+
+def board_paper(board: CalibrationBoard) -> CheckerboardConfig:
+    """The white sheet under the board's squares (one square wider on every side), all
+    bright, for :func:`~.checkerboard.render_checkerboard`."""
+    white = (board.bright_albedo, board.bright_albedo)
+    return CheckerboardConfig(n_cols=board.n_cols + 2, n_rows=board.n_rows + 2,
+                              square_mm=board.square_mm, dark_albedo=white,
+                              bright_albedo=white)
+
+
 def _nearer(front: SurfaceImage, back: SurfaceImage) -> SurfaceImage:
     """Per sample, the surface of whichever image is hit nearer the camera."""
     use_back = ~front.valid | (back.valid & (back.range_mm < front.range_mm))
@@ -106,8 +124,8 @@ def render_board_scene(board: CalibrationBoard, board_to_camera_mm: np.ndarray,
     Returns:
         SurfaceImage; the sheet and squares are object 1, the table object 0.
     """
-    squares = render_checkerboard(board_to_camera_mm, intrinsics, board.checkerboard())
-    sheet = render_checkerboard(board_to_camera_mm, intrinsics, board.paper())
+    squares = render_checkerboard(board_to_camera_mm, intrinsics, board_squares(board))
+    sheet = render_checkerboard(board_to_camera_mm, intrinsics, board_paper(board))
     # The table: a large plain plane just under the sheet (board z points into the table).
     under = board_to_camera_mm @ make_pose(np.eye(3), np.array([0.0, 0.0, sheet_thickness_mm]))
     plain = (table_albedo, table_albedo)
@@ -223,7 +241,8 @@ def simulate_hand_eye_session(rng: np.random.Generator, config: HandEyeSimConfig
         cell: the simulated cell; its ``structured_light.sl_to_tof_mm`` is the *true* SL pose.
 
     Returns:
-        (captures for :func:`~.hand_eye.solve_hand_eye`, the ToF frames for a recording).
+        (captures for :func:`~tof_mpd_ros.calibration.hand_eye.solve_hand_eye`, the ToF frames
+        for a recording).
     """
     config = config or HandEyeSimConfig()
     cell = cell or SimCell()
@@ -256,7 +275,8 @@ def simulate_hand_eye_recording(path: str | Path, rng: np.random.Generator,
                                 config: HandEyeSimConfig | None = None,
                                 cell: SimCell | None = None, *,
                                 overwrite: bool = False) -> list[HandEyeCapture]:
-    """Simulate a calibration session and write it as a recording (:mod:`.hand_eye_io`).
+    """Simulate a calibration session and write it as a recording
+    (:mod:`~tof_mpd_ros.calibration.hand_eye_io`).
 
     The recording also stores the true transforms (``sim_truth``: ``camera_to_flange`` and
     ``sl_to_tof``, metres) so reports can show the calibration error.

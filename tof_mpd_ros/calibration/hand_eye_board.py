@@ -22,7 +22,6 @@ import numpy as np
 from ..camera import Intrinsics
 from ..errors import CalibrationError, InputError
 from ..pose import make_pose, rotvec_to_matrix
-from ..sim.checkerboard import CheckerboardConfig
 from ..validation import check_array
 
 # A PnP fit worse than this (px RMS) means a mislabelled or partly wrong detection.
@@ -88,20 +87,6 @@ class CalibrationBoard:
         w = self.size_mm[0] / 2.0 + border_squares * self.square_mm
         h = self.size_mm[1] / 2.0 + border_squares * self.square_mm
         return np.array([[-w, -h, 0.0], [w, -h, 0.0], [w, h, 0.0], [-w, h, 0.0]])
-
-    def checkerboard(self) -> CheckerboardConfig:
-        """The squares, for :func:`~tof_mpd_ros.sim.checkerboard.render_checkerboard`."""
-        return CheckerboardConfig(n_cols=self.n_cols, n_rows=self.n_rows,
-                                  square_mm=self.square_mm,
-                                  dark_albedo=(self.dark_albedo, self.dark_albedo),
-                                  bright_albedo=(self.bright_albedo, self.bright_albedo))
-
-    def paper(self) -> CheckerboardConfig:
-        """The white sheet under the squares (one square wider on every side), all bright."""
-        white = (self.bright_albedo, self.bright_albedo)
-        return CheckerboardConfig(n_cols=self.n_cols + 2, n_rows=self.n_rows + 2,
-                                  square_mm=self.square_mm, dark_albedo=white,
-                                  bright_albedo=white)
 
     def as_dict(self) -> dict[str, Any]:
         return {"n_cols": self.n_cols, "n_rows": self.n_rows, "square_mm": self.square_mm,

@@ -36,7 +36,7 @@ from ..errors import CalibrationError, InputError, RecordingError
 from ..frame import ToFFrame
 from ..recordings import RecordingReader, RecordingWriter, convert, msgdefs
 from .hand_eye import HandEyeCapture
-from .hand_eye_detect import CalibrationBoard
+from .hand_eye_board import CalibrationBoard
 
 KEY_BOARD = "tof_mpd_ros.hand_eye.board"
 KEY_SL_IMAGE = "tof_mpd_ros.hand_eye.sl_image_topic"

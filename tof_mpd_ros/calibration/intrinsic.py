@@ -14,15 +14,25 @@ Fitting is per-pixel ridge regression of the *correction* ``true - range`` on gl
 standardised features, vectorised over pixels and NaN-aware. The ridge term pulls the two slopes
 towards the identity model (``c1 = 1, c2 = 0``), never the offset, so a pixel with few or
 degenerate samples still gets its mean offset right and cannot blow up.
+
+:meth:`IntrinsicCalibration.fit` is the package's one implementation of the fit (on stacked
+arrays); :func:`fit_calibration` fits from checkerboard frames (``tof-mpd calibrate intrinsic``,
+``tof-mpd train`` and the demo go through it); :func:`save_calibration` and
+:func:`load_calibration` write and read the calibration ``.npz`` (no pickle).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from ..errors import CalibrationError, InputError
+from ..frame import ToFFrame
+from ..npz_file import read_npz
 from ..validation import check_array
 
 AMPLITUDE_TERMS = ("linear", "inverse")
@@ -292,3 +302,50 @@ def _solve(s: dict[str, np.ndarray], st: _Stats, ridge: float, min_samples: int,
     c2 = a2 / st.std_a
     c0 = a0 - a1 * st.mean_r / st.std_r - a2 * st.mean_a / st.std_a
     return IntrinsicCalibration(c0, c1, c2, fitted, term, rms.astype(np.float32))
+
+
+def fit_calibration(frames: Sequence[ToFFrame], **kwargs: Any) -> IntrinsicCalibration:
+    """Fit the per-pixel intrinsic calibration from checkerboard captures.
+
+    Args:
+        frames: ToF frames of the checkerboard with ``reference_mm`` = true radial range of the
+            board plane (NaN = missing), all of one (H, W).
+        **kwargs: passed to :meth:`IntrinsicCalibration.fit` (``amplitude_term``, ``ridge``,
+            ``min_samples``, ``max_unfitted_fraction``).
+
+    Raises:
+        CalibrationError: no frames, a frame without reference, mixed sizes or too few samples.
+    """
+    if len(frames) == 0:
+        raise CalibrationError("fit_calibration needs checkerboard frames, got none")
+    shape = frames[0].range_mm.shape
+    for i, f in enumerate(frames):
+        if f.reference_mm is None:
+            raise CalibrationError(f"checkerboard frame {i} has no reference_mm")
+        if f.range_mm.shape != shape:
+            raise CalibrationError(f"checkerboard frame {i} is {f.range_mm.shape}, frame 0 is "
+                                   f"{shape}")
+    return IntrinsicCalibration.fit(np.stack([f.range_mm for f in frames]),
+                                    np.stack([f.amplitude for f in frames]),
+                                    np.stack([f.reference_mm for f in frames]), **kwargs)
+
+
+def save_calibration(path: Path, calibration: IntrinsicCalibration) -> None:
+    """Write ``calibration`` as an ``.npz`` of :meth:`IntrinsicCalibration.to_arrays`."""
+    np.savez(path, **calibration.to_arrays())
+
+
+def load_calibration(path: Path) -> IntrinsicCalibration:
+    """Read a calibration .npz written by :func:`save_calibration` (no pickle).
+
+    Raises:
+        CalibrationError: no such file, not an npz, or malformed arrays (the message names the
+            file).
+    """
+    if not Path(path).is_file():
+        raise CalibrationError(f"{path}: no such calibration file")
+    arrays = read_npz(Path(path), CalibrationError, "calibration file")
+    try:
+        return IntrinsicCalibration.from_arrays(arrays)
+    except CalibrationError as err:
+        raise CalibrationError(f"{path}: {err}") from err

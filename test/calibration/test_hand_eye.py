@@ -12,29 +12,28 @@ import math
 import numpy as np
 import pytest
 
-from tof_mpd_ros.cli.main import main
-from tof_mpd_ros.collection.hand_eye import (
+from tof_mpd_ros.arm.tool import DEFAULT_T_FLANGE_CAMERA_M
+from tof_mpd_ros.arm.ur5e import solve_ik
+from tof_mpd_ros.calibration.hand_eye import (
     CalibrationBoard,
     HandEyeCapture,
-    HandEyePlanConfig,
-    hand_eye_plan,
     linear_hand_eye,
     pose_difference,
-    rotation_axis_spread_deg,
     solve_hand_eye,
 )
-from tof_mpd_ros.collection.hand_eye_detect import detect_board
-from tof_mpd_ros.collection.hand_eye_io import (
+from tof_mpd_ros.calibration.hand_eye_board import detect_board
+from tof_mpd_ros.calibration.hand_eye_io import (
     load_hand_eye_json,
     read_hand_eye_recording,
     write_hand_eye_recording,
 )
-from tof_mpd_ros.collection.hand_eye_plan import board_visible, default_sl_intrinsics
-from tof_mpd_ros.collection.hand_eye_sim import (
-    HandEyeSimConfig,
-    perturb_pose,
-    render_sl_image,
-    simulate_hand_eye_session,
+from tof_mpd_ros.cli.main import main
+from tof_mpd_ros.collection.hand_eye_plan import (
+    HandEyePlanConfig,
+    board_visible,
+    default_sl_intrinsics,
+    hand_eye_plan,
+    rotation_axis_spread_deg,
 )
 from tof_mpd_ros.errors import CalibrationError, InputError
 from tof_mpd_ros.frame import ToFFrame
@@ -48,8 +47,13 @@ from tof_mpd_ros.pose import (
     rot_z,
 )
 from tof_mpd_ros.sim.cell import SimCell
+from tof_mpd_ros.sim.hand_eye import (
+    HandEyeSimConfig,
+    perturb_pose,
+    render_sl_image,
+    simulate_hand_eye_session,
+)
 from tof_mpd_ros.sim.structured_light import StructuredLightConfig
-from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M, solve_ik
 
 BOARD = CalibrationBoard()
 N_VIEWS = 8

@@ -1,12 +1,20 @@
-"""Per-pixel intrinsic calibration: recovers a known per-pixel linear distortion."""
+"""Per-pixel intrinsic calibration: recovers a known per-pixel linear distortion, from arrays,
+from checkerboard frames and from a capture file (the CLI's one fit)."""
 
 from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+from tof_mpd_ros.calibration import IntrinsicCalibration, fit_calibration
+from tof_mpd_ros.camera import Intrinsics
+from tof_mpd_ros.cli import calibrate as calibrate_cli
 from tof_mpd_ros.errors import CalibrationError, InputError
+from tof_mpd_ros.frame import ToFFrame
+from tof_mpd_ros.recordings import write_frames
 
 H, W, N = 12, 16, 40
 
@@ -104,3 +112,53 @@ def test_arrays_round_trip() -> None:
     np.testing.assert_array_equal(back.apply(observed[0], amp[0]), calib.apply(observed[0], amp[0]))
     with pytest.raises(CalibrationError, match="missing: c2"):
         IntrinsicCalibration.from_arrays({k: v for k, v in arrays.items() if k != "c2"})
+
+
+def _boards(seed: int = 0) -> tuple[list[ToFFrame], np.ndarray]:
+    """12 checkerboard frames of a known per-pixel model; returns them and its c1."""
+    rng = np.random.default_rng(seed)
+    c0, c1, c2 = rng.normal(0, 10, (H, W)), rng.uniform(0.97, 1.03, (H, W)), rng.normal(
+        0, 5, (H, W))
+    boards = []
+    for i in range(12):
+        true = rng.uniform(250, 500) + rng.normal(0, 20, (H, W))
+        amp = rng.uniform(0.1, 1.0, (H, W))
+        obs = (true - c0 - c2 * amp) / c1
+        boards.append(ToFFrame(obs, amp, Intrinsics.from_fov(W, H, 40.0), reference_mm=true,
+                               stamp_ns=1000 * (i + 1)))
+    return boards, c1
+
+
+def test_fit_calibration_from_checkerboard_frames() -> None:
+    boards, c1 = _boards()
+    calib = fit_calibration(boards, ridge=1e-6)
+    np.testing.assert_allclose(calib.c1, c1, atol=1e-4)
+    with pytest.raises(CalibrationError, match="got none"):
+        fit_calibration([])
+    with pytest.raises(CalibrationError, match="frame 1 has no reference_mm"):
+        fit_calibration([boards[0], replace(boards[1], reference_mm=None)])
+    small = replace(boards[1], range_mm=boards[1].range_mm[1:], amplitude=boards[1].amplitude[1:],
+                    reference_mm=boards[1].reference_mm[1:],
+                    intrinsics=Intrinsics.from_fov(W, H - 1, 40.0))
+    with pytest.raises(CalibrationError, match="frame 1 is"):
+        fit_calibration([boards[0], small])
+
+
+def test_the_cli_fits_with_the_one_fit(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # `tof-mpd calibrate intrinsic` (and train, demo) fit through calibration.fit_calibration,
+    # on the frames of the file that carry a reference, with the chosen amplitude term.
+    boards, _ = _boards(1)
+    no_reference = replace(boards[0], reference_mm=None, stamp_ns=99_000)
+    write_frames(tmp_path / "captures", [*boards, no_reference])  # a recording keeps None
+    calls = []
+
+    def spy(frames, **kwargs):
+        calls.append((len(frames), kwargs))
+        return fit_calibration(frames, **kwargs)
+
+    monkeypatch.setattr(calibrate_cli, "fit_calibration", spy)
+    calib, used = calibrate_cli.fit_from_file(tmp_path / "captures", "inverse")
+    assert calls == [(12, {"amplitude_term": "inverse"})] and len(used) == 12
+    want = fit_calibration(used, amplitude_term="inverse")
+    for name in ("c0", "c1", "c2", "fitted", "rms_mm"):
+        np.testing.assert_array_equal(getattr(calib, name), getattr(want, name), err_msg=name)
