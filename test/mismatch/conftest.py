@@ -11,12 +11,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from oracles.analytic_scenes import box_on_table_scene, raycast
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.frame import ToFFrame
 from tof_mpd_ros.pose import rotvec_to_matrix
 from tof_mpd_ros.sim.tof import ToFConfig, render_tof
-from tof_mpd_ros.sim.tof.analytic import box_on_table_scene, raycast
 
 SMALL = Intrinsics.from_fov(48, 36, 74.0)
 PERIOD_S = 0.1

@@ -6,6 +6,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import pytest
+from oracles.analytic_scenes import box_on_table_scene, plane_scene, raycast
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.frame import ToFFrame
@@ -31,7 +32,6 @@ from tof_mpd_ros.sim.tof import (
     unregister_effect,
 )
 from tof_mpd_ros.sim.tof import render as render_module
-from tof_mpd_ros.sim.tof.analytic import box_on_table_scene, plane_scene, raycast
 from tof_mpd_ros.sim.tof.effects.noise import range_noise_std_mm
 
 K = Intrinsics.from_fov(40, 30, 74.0)

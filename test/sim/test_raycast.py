@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib.util
 import math
 
 import numpy as np
@@ -207,3 +208,5 @@ def test_the_package_ships_one_ray_caster_and_no_oracle() -> None:
         oracles = [name for name in vars(module)
                    if name.endswith("_reference") or name in ("visible_from", "_Rays")]
         assert oracles == [], module.__name__
+    # the exact convex-polyhedron caster is a test oracle too (test/oracles/analytic_scenes.py)
+    assert importlib.util.find_spec("tof_mpd_ros.sim.tof.analytic") is None

@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 import pytest
+from oracles.analytic_scenes import groove_scene, plane_scene, raycast
 
 from tof_mpd_ros.arm.viewpoints import ViewpointConfig
 from tof_mpd_ros.camera import Intrinsics
@@ -23,7 +24,6 @@ from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table, make_scene
 from tof_mpd_ros.sim.structured_light import reference_range
 from tof_mpd_ros.sim.tof import reference
-from tof_mpd_ros.sim.tof.analytic import groove_scene, plane_scene, raycast
 from tof_mpd_ros.sim.tof.reference import normals_from_range, surface_from_reference
 from tof_mpd_ros.sim.viewpoints import plan_viewpoints
 

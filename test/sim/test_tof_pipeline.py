@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import pytest
+from oracles.analytic_scenes import box_on_table_scene, raycast
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.sim.tof import (
@@ -23,7 +24,6 @@ from tof_mpd_ros.sim.tof import (
     render_tof,
     unregister_effect,
 )
-from tof_mpd_ros.sim.tof.analytic import box_on_table_scene, raycast
 
 K = Intrinsics.ds325().crop(40, 32)
 SCENE = box_on_table_scene(300.0, 80.0, 15.0, 0.5, box_albedo=0.3)

@@ -1,4 +1,4 @@
-"""Analytic scenes made of convex polyhedra, for tests, benchmarks and documentation.
+"""Analytic scenes of convex polyhedra: an exact ray caster for the tests (not shipped).
 
 A tiny exact ray caster: each solid is an intersection of half-spaces ``n·p <= c`` (``n`` the
 outward unit normal, camera frame, mm); a scene is a union of solids. The first point where a
@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ...camera import Intrinsics
-from ..surface import SurfaceImage
+from tof_mpd_ros.camera import Intrinsics
+from tof_mpd_ros.sim.surface import SurfaceImage
 
 
 @dataclass(frozen=True)
