@@ -249,25 +249,8 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
 
     search = _Search(problem, descriptors, location, min_score, min_t, progress,
                      units_assumed=not monitor)
-    profile: list[str] = []
-    if not monitor:
-        # the camera first: what every camera has its own values of, then the physics on top
-        own = [c for c in candidates if c in PROFILE_EFFECTS]
-        profile = search.greedy(own, len(own))
-        # the camera's level stays a free profile parameter while physics is named on top
-        search.problem = replace(search.problem, free_level=True, _base_cost={}, _level=None)
-        search.refit = profile
-        # what the camera has its own value of within a window (the scene's albedo, known
-        # only within the grey world's doubt, sets the interreflection's strength; the lens
-        # its blur) is part of the profile; left in the residual, other effects would absorb
-        # it. Fitted with the level free: interreflection lifts every range a little
-        own = [c for c in candidates if c in CAMERA_WINDOWS]
-        search.profile_boxes = {c: window_box(c) for c in own}
-        profile += search.greedy(own, len(own), boxes=search.profile_boxes)
-        search.refit = profile
-        scene = [c for c in candidates if c not in PROFILE_EFFECTS]
-    else:
-        scene = list(candidates)
+    profile, scene = (([], list(candidates)) if monitor
+                      else _camera_first(search, candidates))
     selected = search.greedy(scene, max_effects) if max_effects > 0 else []
     # interreflection beyond the albedo's doubt is named physics, no longer the profile's
     profile = [e for e in profile if e not in selected]
@@ -285,6 +268,26 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
                                               profile)
     analysis.unexplained = search.unexplained
     return analysis
+
+
+def _camera_first(search: _Search, candidates: Sequence[str]) -> tuple[list[str], list[str]]:
+    """One-shot: name the camera's profile first (what every camera has its own values of,
+    then what it has within a window), then leave the level free for the physics on top.
+    Returns the profile effects taken and the candidates left for the scene rounds."""
+    own = [c for c in candidates if c in PROFILE_EFFECTS]
+    profile = search.greedy(own, len(own))
+    # the camera's level stays a free profile parameter while physics is named on top
+    search.problem = replace(search.problem, free_level=True, _base_cost={}, _level=None)
+    search.refit = profile
+    # what the camera has its own value of within a window (the scene's albedo, known only
+    # within the grey world's doubt, sets the interreflection's strength; the lens its blur)
+    # is part of the profile; left in the residual, other effects would absorb it. Fitted
+    # with the level free: interreflection lifts every range a little
+    own = [c for c in candidates if c in CAMERA_WINDOWS]
+    search.profile_boxes = {c: window_box(c) for c in own}
+    profile += search.greedy(own, len(own), boxes=search.profile_boxes)
+    search.refit = profile
+    return profile, [c for c in candidates if c not in PROFILE_EFFECTS]
 
 
 @dataclass
