@@ -164,6 +164,23 @@ def test_noise_std_follows_the_noise_law():
     np.testing.assert_allclose(noise_std_mm(a, scaled), 2 * expected, rtol=1e-6)
 
 
+def test_rebased_predictor_reuses_the_frame_surface_and_predicts_like_a_fresh_one(box_frame):
+    # rebasing happens after every named effect: the surface and its normals (a plane fit per
+    # pixel) depend on the frame only, so they are shared, and nothing else may change
+    frame, _ref = box_frame
+    albedo = np.full(K.shape, 0.5)
+    pred = FramePredictor(frame, QUIET, albedo=albedo)
+    cfg = QUIET.with_effect("mixed_pixels", enabled=True, psf_sigma_px=0.8) \
+        .with_effect("wiggling", enabled=True, a1_mm=3.0)
+    rebased = pred.rebased(cfg)
+    assert rebased.surface is pred.surface
+    fresh = FramePredictor(frame, cfg, albedo=albedo)
+    for config in (None, cfg.with_effect("pixel_offset", enabled=True, offset_mean_mm=2.0)):
+        np.testing.assert_array_equal(rebased.predict(config).range_mm,
+                                      fresh.predict(config).range_mm)
+        np.testing.assert_array_equal(rebased.predict(config).amplitude,
+                                      fresh.predict(config).amplitude)
+
 def test_predictor_equals_simulator_render_with_every_effect_at_once(box_frame):
     """Effects that do not commute (wiggling reads the range pixel_offset scales; scatter and
     subsurface mix what multipath added): any difference in step order shows."""

@@ -285,6 +285,8 @@ class FramePredictor:
         motion: camera velocity during the frame (time offset), or None.
         albedo: (H, W) float albedo in [0, 1], or None to infer it from the real amplitude.
         indirect_cache: shared cache of indirect phasors (see :meth:`rebased`).
+        surface: the surface of the frame's reference with ``albedo`` (see :meth:`rebased`), or
+            None to build it (its normals are a plane fit per pixel, the costly part).
 
     Attributes:
         steps: the simulator's pipeline steps the prediction walks, in order: every step but
@@ -293,7 +295,8 @@ class FramePredictor:
 
     def __init__(self, frame: ToFFrame, base: ToFConfig, *, frame_index: int = 0,
                  motion: CameraMotion | None = None, albedo: np.ndarray | None = None,
-                 indirect_cache: dict[tuple, np.ndarray] | None = None) -> None:
+                 indirect_cache: dict[tuple, np.ndarray] | None = None,
+                 surface: SurfaceImage | None = None) -> None:
         if frame.reference_mm is None:
             raise MismatchError("the predictor needs the frame's reference range image")
         self.frame = frame
@@ -303,7 +306,7 @@ class FramePredictor:
         # holes are filled for light transport and mixing, and masked again at the end
         self.reference_valid = np.isfinite(frame.reference_mm)
         self.surface = surface_from_reference(fill_holes(frame.reference_mm), frame.intrinsics,
-                                              self.albedo)
+                                              self.albedo) if surface is None else surface
         self._indirect = {} if indirect_cache is None else indirect_cache
         self.base = base
         self.steps: tuple[Step, ...] = tuple(
@@ -333,10 +336,11 @@ class FramePredictor:
         return result
 
     def rebased(self, base: ToFConfig) -> FramePredictor:
-        """The same frame predicted around another base configuration (albedo and the indirect
-        phasor are reused)."""
+        """The same frame predicted around another base configuration (albedo, the surface and
+        its normals, and the indirect phasor are reused: they depend on the frame only)."""
         return FramePredictor(self.frame, base, frame_index=self.frame_index, motion=self.motion,
-                              albedo=self.albedo, indirect_cache=self._indirect)
+                              albedo=self.albedo, indirect_cache=self._indirect,
+                              surface=self.surface)
 
     def indirect(self, config: ToFConfig) -> np.ndarray:
         """(H, W) complex128 unit-gain indirect phasor of the reference surface (its world:
