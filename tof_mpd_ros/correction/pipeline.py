@@ -232,7 +232,7 @@ def correct(
 
 
 def _worker_count(threads: int | None) -> int:
-    """Fast-path workers: ``threads``, or torch's thread count capped by the usable CPUs."""
+    """CPU workers: ``threads``, or torch's thread count capped by the usable CPUs."""
     if threads is not None:
         if int(threads) < 1:
             raise InputError(f"threads must be >= 1, got {threads}")
