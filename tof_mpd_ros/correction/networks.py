@@ -601,21 +601,29 @@ class PatchNets:
 
 def _heads_torch(wts: FusedWeights, first: torch.Tensor, pixels: slice, frame: FrameBins,
                  do_f: bool, do_g: bool, out: HeadOutputs) -> None:
-    """:func:`_heads_kernel`'s operations as torch ops on ``first``'s device (tensors of
-    ``wts`` on that device), for the pixels ``pixels`` of the frame."""
+    """:func:`_heads_kernel`'s operations as torch ops on ``first``'s device.
+
+    Args:
+        wts: :class:`FusedWeights` as tensors on that device.
+        first: (rows, n) float32 first-layer ``W x`` of the pixels (overwritten).
+        pixels: their flat indices in the frame, a slice of length n.
+        frame, do_f, do_g, out: as :meth:`PatchNets.heads` (the group is the first maximum on
+            ties, as ``torch.max`` documents and the kernel does).
+    """
     dev = first.device
     nf = int(wts.f_dims[0])
+    bins_r = torch.from_numpy(frame.bin_range[pixels]).to(dev).long()
+    bins_a = torch.from_numpy(frame.bin_amplitude[pixels]).to(dev).long()
     with torch.no_grad():
         h = first.add_(wts.bias[:, None])
-        h[:nf].add_(wts.table_range[:, torch.from_numpy(frame.bin_range[pixels]).to(dev).long()])
-        h[:nf].add_(wts.table_amp[:, torch.from_numpy(frame.bin_amplitude[pixels]).to(dev).long()])
+        h[:nf].add_(wts.table_range[:, bins_r]).add_(wts.table_amp[:, bins_a])
         h.relu_()
         if do_f:
             x = h[:nf]
             dims = wts.f_dims.tolist()
             for i in range(len(dims) - 1):
-                x = torch.addmm(wts.f_b[i, :dims[i + 1], None], wts.f_w[i, :dims[i + 1], :dims[i]],
-                                x)
+                x = torch.addmm(wts.f_b[i, :dims[i + 1], None],
+                                wts.f_w[i, :dims[i + 1], :dims[i]], x)
                 if i < len(dims) - 2:
                     x.relu_()
             out.correction[pixels] = (x[0] * wts.t_clip).cpu().numpy()
