@@ -1,4 +1,7 @@
-"""A straightforward per-pixel reference implementation of :func:`.pipeline.correct`.
+"""A straightforward per-pixel oracle of :func:`tof_mpd_ros.correction.pipeline.correct`.
+
+Test code, not shipped: it only keeps the production path honest (``test/correction``,
+``benchmarks/bench_pipeline.py``).
 
 Same maths as the production path, written to be read and checked rather than to be fast
 (~8 s of CPU per 180x140 frame, three quarters of it in the per-pixel Dijkstra):
@@ -10,15 +13,17 @@ Same maths as the production path, written to be read and checked rather than to
 3. **F** and each of the **4 G heads**: plain matrix-vector products per pixel with the model's
    weights, in float64 (``relu(W x + b)`` layer after layer, F's one-hot terms as part of the
    280-vector, G's edge probability ``softmax(logits)[1]``), rounded to float32 at the end;
-4. **edges**: the (4, H, W) head probabilities -> :func:`.edges.edge_map_from_responses`
-   (max over the heads, NMS, staircase thinning, hysteresis; it *is* the definition, so it is
-   reused, not rewritten; the CPU fast path enters the same code through
-   ``edge_map_from_best`` with the maximum and its group);
+4. **edges**: the (4, H, W) head probabilities ->
+   :func:`~tof_mpd_ros.correction.edges.edge_map_from_responses` (max over the heads, NMS,
+   staircase thinning, hysteresis; it *is* the definition, so it is reused, not rewritten; the
+   production path enters the same code through ``edge_map_from_best`` with the maximum and its
+   group);
 5. **geodesic filter**: a textbook Dijkstra per pixel with :mod:`heapq` on the graph of
-   :mod:`.geodesic` (8-connected, axis step 1 and diagonal √2, no path enters an edge pixel, a
-   diagonal move is blocked when both corner pixels it cuts are edges, missing pixels may be
-   crossed but are never neighbours, search radius 32 steps, ties by flat index), then the
-   Gaussian-weighted mean over the K nearest valid pixels and the edge-pixel snapping rule.
+   :mod:`tof_mpd_ros.correction.geodesic` (8-connected, axis step 1 and diagonal √2, no path
+   enters an edge pixel, a diagonal move is blocked when both corner pixels it cuts are edges,
+   missing pixels may be crossed but are never neighbours, search radius 32 steps, ties by flat
+   index), then the Gaussian-weighted mean over the K nearest valid pixels and the edge-pixel
+   snapping rule.
 
 Intentional differences from the production path, none of which is visible in the outputs:
 
@@ -31,8 +36,8 @@ Intentional differences from the production path, none of which is visible in th
   ``a + b √2``) so equal geodesic distances compare equal; the production kernel does the same
   through a rank table. A float accumulation (``d + 1.0``, ``d + √2``) could order two pixels at
   the same true distance differently depending on the path and pick another K-th neighbour;
-* invalid centre pixels get no one-hot bin (the encoding module's definition); the fused
-  production path looks up bin 0 for them. Their outputs are NaN either way.
+* invalid centre pixels get no one-hot bin (the encoding module's definition); the production
+  networks look up bin 0 for them. Their outputs are NaN either way.
 
 Every stage is a separate function taking an optional list of pixels, so the benchmark can time
 the slow stages on a sample of pixels and extrapolate.
@@ -48,12 +53,12 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..calibration.intrinsic import IntrinsicCalibration
-from ..errors import InputError
-from .edges import edge_map_from_responses
-from .encoding import EncodingConfig
-from .geodesic import DEFAULT_MAX_STEPS
-from .pipeline import CorrectionModel, CorrectionResult, check_frame_pair
+from tof_mpd_ros.calibration.intrinsic import IntrinsicCalibration
+from tof_mpd_ros.correction.edges import edge_map_from_responses
+from tof_mpd_ros.correction.encoding import EncodingConfig
+from tof_mpd_ros.correction.geodesic import DEFAULT_MAX_STEPS
+from tof_mpd_ros.correction.pipeline import CorrectionModel, CorrectionResult, check_frame_pair
+from tof_mpd_ros.errors import InputError
 
 SQRT2 = math.sqrt(2.0)
 # (dy, dx) of the 8 moves, in the order geodesic.py uses (it matters for edge snapping ties).
@@ -316,7 +321,7 @@ def reference_geodesic_raw(range_mm: np.ndarray, edges: np.ndarray, *, k: int = 
     Args:
         range_mm: (H, W) float R_F in mm, NaN = missing.
         edges: (H, W) bool edge map.
-        k, sigma, step, max_distance: as :func:`.geodesic.geodesic_filter`.
+        k, sigma, step, max_distance: as :func:`tof_mpd_ros.correction.geodesic.geodesic_filter`.
         pixels: (y, x) pixels to compute; None = every pixel.
 
     Returns:
@@ -385,7 +390,8 @@ def reference_geodesic_filter(range_mm: np.ndarray, edges: np.ndarray, *, k: int
                               sigma: float = 2.0, step: float = 1.0,
                               max_distance: float | None = None,
                               fill_missing: bool = True) -> np.ndarray:
-    """Straightforward equivalent of :func:`.geodesic.geodesic_filter` (same arguments).
+    """Straightforward equivalent of
+    :func:`tof_mpd_ros.correction.geodesic.geodesic_filter` (same arguments).
 
     Returns:
         (H, W) float32 filtered radial range in mm.
@@ -404,7 +410,8 @@ def reference_geodesic_filter(range_mm: np.ndarray, edges: np.ndarray, *, k: int
 def reference_correct(model: CorrectionModel, range_mm: np.ndarray, amplitude: np.ndarray, *,
                       use_range_net: bool = True, use_boundary: bool = True
                       ) -> CorrectionResult:
-    """The straightforward equivalent of :func:`.pipeline.correct` for one (H, W) frame.
+    """The straightforward equivalent of :func:`tof_mpd_ros.correction.pipeline.correct` for
+    one (H, W) frame.
 
     Args:
         model: the correction model (CPU).
@@ -414,10 +421,10 @@ def reference_correct(model: CorrectionModel, range_mm: np.ndarray, amplitude: n
         use_boundary: apply G and the geodesic filter.
 
     Returns:
-        A :class:`.pipeline.CorrectionResult` with (H, W) arrays.
+        A :class:`tof_mpd_ros.correction.pipeline.CorrectionResult` with (H, W) arrays.
 
     Raises:
-        InputError: as :func:`.pipeline.check_frame_pair`; a batch is refused.
+        InputError: as :func:`tof_mpd_ros.correction.pipeline.check_frame_pair`; a batch is refused.
     """
     r, a = check_frame_pair(model.shape, range_mm, amplitude)
     if r.ndim != 2:
