@@ -329,6 +329,7 @@ def _allowed_moves(edge: np.ndarray) -> np.ndarray:
     return mask
 
 
+# One function: the bucket loop is the hot loop, kept whole so its locals stay in registers.
 @numba.njit(cache=True, nogil=True)
 def _knn_one(src, g, work, out_idx, out_rank):  # pragma: no cover
     """Bucket-queue Dijkstra from ``src`` on graph ``g`` (:class:`Graph`) with ``work``
@@ -336,8 +337,7 @@ def _knn_one(src, g, work, out_idx, out_rank):  # pragma: no cover
 
     ``state[v]`` is ``2 sid`` once v is reached from this source and ``2 sid + 1`` once settled
     (``sid = src + 1``); sources of one worker increase, so older stamps are always smaller and
-    nothing is reset between sources. One function (~65 lines): the bucket loop is the hot
-    loop, kept whole so that its locals stay in registers.
+    nothing is reset between sources.
     """
     moves_ok, move_off, move_diag, valid = g.moves_ok, g.move_off, g.move_diag, g.valid
     k, next_axis, next_diag = g.k, g.next_axis, g.next_diag
