@@ -8,8 +8,9 @@ install or an editable checkout all read the same files).
   measured data (:mod:`tof_mpd_ros.evaluation.benchmark.paper`);
 * ``mismatch.txt``: the mismatch tool's sentences (evidence, reasons, the camera's profile, the
   verdict), as macros fed by the facts its modules compute (:mod:`tof_mpd_ros.mismatch.wording`);
-* ``mode_disagreement.txt``, ``demo_summary.txt``: texts laid out in lines and columns (the
-  real-data modes' disagreement, ``tof-mpd demo``'s summary), rendered as written.
+* ``mode_disagreement.txt``, ``mismatch_benchmark.txt``, ``demo_summary.txt``: texts laid out
+  in lines and columns (the real-data modes' disagreement, the mismatch benchmark's table,
+  ``tof-mpd demo``'s summary), rendered as written.
 
 Templates named ``*.html`` are autoescaped pages (:func:`render`, :func:`write_page`). ``*.txt``
 are text: sentences as macros (:func:`macros`, one line each through :func:`words`), or, when
