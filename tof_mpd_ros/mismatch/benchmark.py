@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import MismatchError
 from ..recordings import save_npz
+from ..templates import render
 from .analysis import MIN_SCORE, MIN_T, analyse
 from .cases import CONCEALABLE, PATHTRACE_OWN, generate_case, truth_config
 from .data import load_frames
@@ -228,31 +229,10 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def _num(x: float | None) -> str:
-    return "  n/a" if x is None else f"{x:5.2f}"
-
-
 def text_table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
-    """Plain-text table of the cases and the summary."""
-    lines = [f"{'case':>6}  {'truth':34s} {'selected':34s} ok  rmse b/a/oracle (mm)  "
-             "excess b/a (mm)"]
-    for r in rows:
-        lines.append(
-            f"{r['case']!s:>6}  {'+'.join(r['truth']) or 'none':34s} "
-            f"{'+'.join(r['selected']) or 'none':34s} {'Y' if r['top1'] else 'n':2s}  "
-            f"{_num(r['rmse_before_mm'])}/{_num(r['rmse_after_mm'])}/"
-            f"{_num(r.get('oracle_rmse_after_mm'))}    "
-            f"{_num(r['excess_before_mm'])}/{_num(r['excess_after_mm'])}")
-    lines.append("")
-    for k, v in summary.items():
-        if not isinstance(v, dict):
-            lines.append(f"{k:36s} {v if not isinstance(v, float) else round(v, 4)}")
-    lines.append("per-effect top-1: " + ", ".join(
-        f"{k} {v:.2f}" for k, v in summary["per_effect_top1"].items()))
-    lines.append("per-effect median parameter error: " + ", ".join(
-        f"{k} {v:.3f}" for k, v in summary["per_effect_parameter_error_median"].items()
-        if v is not None))
-    return "\n".join(lines)
+    """Plain-text table of the cases and the summary (the package template
+    ``templates/mismatch_benchmark.txt``)."""
+    return render("mismatch_benchmark.txt", rows=rows, summary=summary)
 
 
 def reselect(result: dict[str, Any]) -> dict[str, Any]:

@@ -49,6 +49,7 @@ from ..camera import Intrinsics
 from ..errors import MismatchError
 from ..frame import DEFAULT_MOD_FREQ_HZ, ToFFrame
 from ..sim.tof import DEFAULT_LIGHT_POWER, ToFConfig
+from ..templates import render
 from .profile import CELL_DISTANCE_MM, with_scene_distance
 
 #: planes closer than this to parallel form no crease (neighbouring panels, or two fits of one
@@ -782,26 +783,6 @@ def _r(value: float, digits: int = 1) -> float:
 
 
 def format_disagreement(result: dict) -> str:
-    """:func:`mode_disagreement`'s result as a few lines of text."""
-    a, b = result.get("modes", ("a", "b"))
-    p = result["percentiles_mm"]
-    lines = [f"mode {a} − mode {b} on static surfaces: n = {result['n']} pixels "
-             f"({100 * result['share_of_pixels']:.0f} % of the image)",
-             f"  median {result['median_mm']} mm, MAD {result['mad_mm']} mm "
-             f"(robust σ {result['robust_sigma_mm']} mm), mean {result['mean_mm']} mm, "
-             f"RMS {result['rms_mm']} mm",
-             f"  percentiles 5/25/50/75/95: {p['5']} / {p['25']} / {p['50']} / {p['75']} / "
-             f"{p['95']} mm; slope {result['slope_mm_per_m']} mm per m of range"]
-    for key, label in (("by_range_mm", "range mm"), ("by_amplitude_a", f"amplitude {a}"),
-                       ("by_amplitude_b", f"amplitude {b}")):
-        cells = [f"{c['lo']:g}–{c['hi']:g}: {c['median_mm']} ± {c['mad_mm']} (n {c['n']})"
-                 for c in result[key]]
-        lines.append(f"  by {label}: " + "; ".join(cells))
-    if "by_surface" in result:
-        cells = [f"{c['range_mm']:g} mm: {c['median_mm']} ± {c['mad_mm']} (n {c['n']})"
-                 for c in result["by_surface"]]
-        lines.append("  by surface (its median range): " + "; ".join(cells))
-    s = result["spearman"]
-    lines.append(f"  Spearman ρ with range {s['range']}, amplitude {a} {s['amplitude_a']}, "
-                 f"amplitude {b} {s['amplitude_b']}")
-    return "\n".join(lines)
+    """:func:`mode_disagreement`'s result as a few lines of text (the package template
+    ``templates/mode_disagreement.txt``)."""
+    return render("mode_disagreement.txt", r=result)

@@ -15,6 +15,7 @@ from ..errors import MismatchError
 from ..templates import render
 from .analysis import Analysis
 from .locate import describe_stratum
+from .wording import text
 
 REPORT_JSON = "report.json"
 CONFIG_JSON = "fitted_config.json"
@@ -22,17 +23,17 @@ CONFIG_JSON = "fitted_config.json"
 
 def to_json(analysis: Analysis) -> dict[str, Any]:
     """The JSON document of a report: the answer first (selected effects, verdict), then the
-    evidence (docs/mismatch.md lists the fields)."""
+    evidence (docs/mismatch.md lists the fields). Its sentences (verdict, the profile's
+    summary, evidence, reasons) come from ``templates/mismatch.txt``."""
     m = analysis.metrics
     return _clean({
         "selected": analysis.selected,
-        "verdict": (", ".join(analysis.selected) if analysis.selected
-                    else "none: no significant mismatch"),
+        "verdict": text("verdict", analysis.selected),
         "workflow": analysis.workflow,
         "camera_profile": {"effects": analysis.profile,
                            "parameters": {e: analysis.parameters[e] for e in analysis.profile},
                            "facts": analysis.profile_facts,
-                           "summary": "; ".join(analysis.profile_words)},
+                           "summary": text("profile_summary", analysis.profile_words)},
         "unexplained": analysis.unexplained,
         "ranking": analysis.ranking(),
         "parameters": analysis.parameters,

@@ -5,11 +5,18 @@ install or an editable checkout all read the same files).
 * ``base.html`` with ``report.css``: the frame and the one stylesheet of every HTML report
   (:mod:`tof_mpd_ros.evaluation.report`, :mod:`tof_mpd_ros.mismatch.report`), which extend it;
 * ``paper_comparison.txt``: the benchmark's findings against the paper, as macros fed by the
-  measured data (:mod:`tof_mpd_ros.evaluation.benchmark.paper`).
+  measured data (:mod:`tof_mpd_ros.evaluation.benchmark.paper`);
+* ``mismatch.txt``: the mismatch tool's sentences (evidence, reasons, the camera's profile, the
+  verdict), as macros fed by the facts its modules compute (:mod:`tof_mpd_ros.mismatch.wording`);
+* ``mode_disagreement.txt``, ``mismatch_benchmark.txt``, ``demo_summary.txt``: texts laid out
+  in lines and columns (the real-data modes' disagreement, the mismatch benchmark's table,
+  ``tof-mpd demo``'s summary), rendered as written.
 
-Templates named ``*.html`` are autoescaped pages (:func:`render`, :func:`write_page`); ``*.txt``
-hold prose macros (:func:`macros`, :func:`words`). The filters below format numbers the same way
-in every report.
+Templates named ``*.html`` are autoescaped pages (:func:`render`, :func:`write_page`). ``*.txt``
+are text: sentences as macros (:func:`macros`, one line each through :func:`words`), or, when
+the layout is lines, a whole text rendered as written (:func:`render`: one template line is one
+line of text; a block tag on a line of its own leaves nothing). The filters below format numbers
+the same way in every report.
 """
 
 from __future__ import annotations
@@ -34,6 +41,12 @@ def fmt(value: Any, spec: str, scale: float = 1.0) -> str:
     if value is None or math.isnan(value):
         return MISSING
     return format(scale * value, spec)
+
+
+def spec(value: Any, format_spec: str) -> str:
+    """``format(value, format_spec)``, exactly as an f-string writes ``{value:format_spec}``
+    (NaN stays ``"nan"``, unlike :func:`fmt`): ``spec(0.612, ">8.1%")`` -> ``"   61.2%"``."""
+    return format(value, format_spec)
 
 
 def pct(value: float) -> str:
@@ -71,7 +84,7 @@ def environment(prose: bool = False) -> jinja2.Environment:
         autoescape=jinja2.select_autoescape(enabled_extensions=("html",),
                                             default_for_string=False, default=False),
         undefined=jinja2.StrictUndefined, trim_blocks=not prose, lstrip_blocks=not prose)
-    env.filters.update(fmt=fmt, pct=pct, ordinal=ordinal, thousands=thousands,
+    env.filters.update(fmt=fmt, spec=spec, pct=pct, ordinal=ordinal, thousands=thousands,
                        json=json.dumps, stem=lambda name: Path(name).stem)
     return env
 
@@ -107,5 +120,5 @@ def words(text: Any) -> str:
     return _SPACE_BEFORE_PUNCTUATION.sub(r"\1", " ".join(str(text).split()))
 
 
-__all__ = ["MISSING", "environment", "fmt", "macros", "ordinal", "pct", "render",
+__all__ = ["MISSING", "environment", "fmt", "macros", "ordinal", "pct", "render", "spec",
            "template_names", "thousands", "words", "write_page"]
