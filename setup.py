@@ -44,22 +44,28 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test", "test.*"]),
-    package_data={PACKAGE: ["py.typed", "data/*.npz", "data/*.json", "data/*.yaml"]},
+    # templates/: the reports' Jinja2 pages, stylesheet and prose (tof_mpd_ros.templates)
+    package_data={PACKAGE: ["py.typed", "data/*.npz", "data/*.json", "data/*.yaml",
+                            "templates/*.html", "templates/*.css", "templates/*.txt"]},
     data_files=data_files,
     python_requires=">=3.10",
     install_requires=[
         "numpy>=1.26",
         "scipy>=1.11",
-        "torch==2.13.0",  # the CPU wheel; any looser pin pulls a multi-GB CUDA build
+        # the CPU wheel (any looser pin pulls a multi-GB CUDA build); also the version whose
+        # private torch.ops.mkldnn._linear_pointwise and Tensor._version are tested
+        "torch==2.13.0",
         "opencv-contrib-python-headless>=4.8",
         "numba>=0.59",
         "scikit-learn>=1.4",
         "mcap>=1.2",
-        "mcap-ros2-support>=0.5",
+        # pinned: recordings/writer.py uses its private mcap_ros2._dynamic (test_private_apis)
+        "mcap-ros2-support==0.6.0",
         "ur-rtde>=1.5",
         "pyyaml>=6",
         "tqdm>=4.66",
         "matplotlib>=3.8",
+        "jinja2>=3.1",
     ],
     extras_require={
         "ros": ROS_WHEELS,

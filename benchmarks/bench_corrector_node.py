@@ -37,7 +37,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_machine import cpu_model
 
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # run from a checkout without installing
@@ -242,10 +241,11 @@ def main() -> None:
     os.environ.setdefault("ROS_LOG_DIR", log_dir)
     import torch
 
-    from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+    from tof_mpd_ros.calibration import IntrinsicCalibration
     from tof_mpd_ros.correction.depth_stream import DepthStreamCorrector
     from tof_mpd_ros.correction.pipeline import CorrectionModel
     from tof_mpd_ros.correction.weights import load_weights, save_weights
+    from tof_mpd_ros.machine import cpu_model
 
     weights = args.weights
     if weights is None:

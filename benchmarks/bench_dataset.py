@@ -43,16 +43,19 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
 import numba
 import numpy as np
-from bench_machine import cpu_model
 
+from tof_mpd_ros.pose import make_pose, transform_points
 from tof_mpd_ros.sim import raycast
 from tof_mpd_ros.sim import structured_light as sl
 from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.checkerboard import calibration_poses
 from tof_mpd_ros.sim.dataset import DatasetSpec, scene_rng
-from tof_mpd_ros.sim.poses import make_pose, transform_points
 from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import make_scene
 from tof_mpd_ros.sim.tof import render_tof

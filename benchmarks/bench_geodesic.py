@@ -20,6 +20,10 @@ import platform
 import statistics
 import time
 
+from tof_mpd_ros.machine import set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
 import numba
 import numpy as np
 
@@ -107,7 +111,7 @@ def main() -> None:
         "frame": f"{r.shape[1]}x{r.shape[0]}", "edge_pixels": int(edges.sum()),
         "numba_threads": threads, "load_average_1min": os.getloadavg()[0]}
     graph, _ = geodesic._prepare(edges, valid, 81, 1.0, None)
-    res["template_share"] = round(float(graph[10].mean()), 3)
+    res["template_share"] = round(float(graph.tmpl_ok.mean()), 3)
 
     res["geodesic_filter_ms"] = timed(lambda: geodesic.geodesic_filter(r, edges), args.repeats)
     res["geodesic_neighbours_ms"] = timed(

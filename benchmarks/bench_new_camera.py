@@ -34,7 +34,9 @@ import platform
 import time
 from pathlib import Path
 
-from bench_machine import cpu_model
+from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
 
 from tof_mpd_ros.cli.main import main as cli
 from tof_mpd_ros.sim.cell import SimCell

@@ -10,10 +10,11 @@ correction, for
   band loop of row encoding + F+G GEMM and kernel, whose time is split between encoding and
   F+G in proportion to their summed per-thread CPU times, NMS + hysteresis, geodesic filter;
   F and G share their first-layer GEMM, so they are one row); the rest is "other" (glue);
-* the **reference path**: ``correction.reference_pipeline`` (per-pixel loops, per-pixel numpy
-  matrix-vector products, per-pixel heapq Dijkstra). It is too slow to run whole frames
-  repeatedly (~8 s of CPU per 180x140 frame), so encoding, F, G and the geodesic search are timed on
-  a random sample of pixels per frame and extrapolated to the frame's pixel count; calibration,
+* the **reference path**: the test oracle ``test/oracles/reference_pipeline.py`` (per-pixel
+  loops, per-pixel numpy matrix-vector products, per-pixel heapq Dijkstra). It is too slow to
+  run whole frames repeatedly (~8 s of CPU per 180x140 frame), so encoding, F, G and the
+  geodesic search are timed on a random sample of pixels per frame and extrapolated to the
+  frame's pixel count; calibration,
   the padded planes and the edge snapping run on the full frame. NMS + hysteresis is the same
   function in both paths. The sampled pixels are also checked against the fast path's output.
 
@@ -53,16 +54,21 @@ import numba
 import numpy as np
 import torch
 
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction import edges as edges_module
 from tof_mpd_ros.correction import geodesic as geodesic_module
 from tof_mpd_ros.correction import networks as networks_module
 from tof_mpd_ros.correction import pipeline as pipeline_module
-from tof_mpd_ros.correction import reference_pipeline as ref
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
+from tof_mpd_ros.evaluation.components import g_probabilities
+from tof_mpd_ros.machine import cpu_model, cpuinfo
+
+# The reference path is a test oracle (test/oracles, not in the wheel).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
+from oracles import reference_pipeline as ref
 
 PAPER_MS = 165.0                       # the paper, per frame, with a GPU
-TARGETS_MS = {"180x140": 25.0, "320x240": 60.0}   # issue 8 (SPEC §6: <= 33 ms at 180x140)
+TARGETS_MS = {"180x140": 25.0, "320x240": 60.0}   # issue 8 (docs/performance.md)
 STAGES = ("calibration", "encoding", "F", "G", "F+G", "NMS+hysteresis", "geodesic", "other")
 PRECISION = {"value": "float32"}        # --precision: the fast path's first-layer GEMMs
 
@@ -75,19 +81,6 @@ def fast_correct(model: CorrectionModel, range_mm: np.ndarray, amplitude: np.nda
 
 # ---------------------------------------------------------------------------------------------
 # machine
-
-
-def cpuinfo() -> dict[str, str]:
-    """First processor block of /proc/cpuinfo as a dict (empty off Linux)."""
-    try:
-        text = Path("/proc/cpuinfo").read_text(encoding="utf-8")
-    except OSError:
-        return {}
-    info: dict[str, str] = {}
-    for line in text.split("\n\n")[0].splitlines():
-        key, _, value = line.partition(":")
-        info[key.strip()] = value.strip()
-    return info
 
 
 def cpu_peak(n_cores: int) -> dict[str, Any]:
@@ -137,9 +130,8 @@ def gemm_ceiling(n: int = 1536, repeats: int = 5) -> float:
 def machine() -> dict[str, Any]:
     """CPU model, cores, threads, load."""
     info = cpuinfo()
-    model = info.get("model name") or platform.processor() or platform.machine()
     extra = f" (family {info.get('cpu family')}, model {info.get('model')})" if info else ""
-    return {"cpu": model + extra, "cpus": os.cpu_count(),
+    return {"cpu": cpu_model() + extra, "cpus": os.cpu_count(),
             "affinity_cpus": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity")
             else os.cpu_count(),
             "torch_threads": torch.get_num_threads(), "numba_threads": numba.get_num_threads(),
@@ -252,7 +244,7 @@ class StageTimer:
 
     * ``seq``: called on the caller's thread; adds wall and process CPU time to its stage;
     * ``container``: a sequential call that runs several stages on worker threads (the fast
-      path's ``_FastEngine.networks``: per band, row encoding then the F+G GEMM and kernel);
+      path's ``_Engine.networks``: per band, row encoding then the F+G GEMM and kernel);
     * ``inner``: what runs inside a container on the workers; only the CPU time of the calling
       thread (``time.thread_time``, blind to preemption) is summed over threads, to split the
       container's wall and CPU time between encoding and F+G in that proportion.
@@ -263,18 +255,13 @@ class StageTimer:
 
     HOOKS = (  # (stage, owner, attribute, kind)
         ("calibration", IntrinsicCalibration, "apply", "seq"),
-        # CPU fast path (pipeline._FastEngine)
+        # pipeline._Engine
         ("encoding", pipeline_module, "frame_planes", "seq"),
-        ("encoding+F+G", getattr(pipeline_module, "_FastEngine", None), "networks", "container"),
+        ("encoding+F+G", pipeline_module._Engine, "networks", "container"),
         ("encoding", pipeline_module, "encode_rows", "inner"),
-        ("F+G", getattr(networks_module, "FastPatchNets", None), "first_layer", "inner"),
-        ("F+G", getattr(networks_module, "FastPatchNets", None), "heads", "inner"),
+        ("F+G", networks_module.PatchNets, "first_layer", "inner"),
+        ("F+G", networks_module.PatchNets, "heads", "inner"),
         ("NMS+hysteresis", edges_module, "edge_map_from_best", "seq"),
-        # torch path (column encoding + FusedPatchNets; other devices, older versions)
-        ("encoding", pipeline_module, "encode_frame_columns", "seq"),
-        ("F+G", networks_module.FusedPatchNets, "__call__", "seq"),
-        ("F+G", networks_module.FusedPatchNets, "__init__", "seq"),
-        ("NMS+hysteresis", edges_module, "edge_map_from_responses", "seq"),
         ("geodesic", geodesic_module, "geodesic_filter", "seq"),
     )
 
@@ -363,25 +350,10 @@ def time_fast(model: CorrectionModel, frames: list[tuple[np.ndarray, np.ndarray]
             "hooked": hooked, "scores": head_scores(model, frames[0])}
 
 
-def head_scores(model: CorrectionModel, frame: tuple[np.ndarray, np.ndarray]
-                ) -> np.ndarray | None:
-    """(4, H, W) G probabilities of a frame (the reference's NMS input), from the torch path."""
-    try:
-        from tof_mpd_ros.correction.encoding import encode_frame_columns
-
-        r, a = frame
-        calibrated = model.calibration.apply(r, a)
-        enc = encode_frame_columns(calibrated, a, model.encoding)[0]
-        fused = networks_module.FusedPatchNets(model.range_net, model.boundary_nets,
-                                               model.encoding.patch_size, model.encoding.n_bins)
-        _, probs = fused(enc.x_range, enc.x_amplitude, enc.bin_range, enc.bin_amplitude)
-        h, w = model.shape
-        p = probs.numpy()
-        scores = (p.T if p.shape[0] == h * w else p).reshape(-1, h, w)
-        return np.where(enc.valid.numpy(), scores, np.float32(0.0)).astype(np.float32)
-    except Exception as err:  # an API that moved: skip the reference NMS timing, say why
-        print(f"(reference NMS timing skipped: {type(err).__name__}: {err})")
-        return None
+def head_scores(model: CorrectionModel, frame: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+    """(4, H, W) G probabilities of a frame (the reference's NMS input), from the modules."""
+    r, a = frame
+    return g_probabilities(model, model.calibration.apply(r, a), a)
 
 
 def time_reference(model: CorrectionModel, frames: list[tuple[np.ndarray, np.ndarray]],

@@ -28,13 +28,16 @@ import platform
 import statistics
 import time
 
+from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
 import numba
 import numpy as np
-from bench_machine import cpu_model
 
+from tof_mpd_ros.pose import look_at
 from tof_mpd_ros.sim.cell import CameraModel, SimCell
 from tof_mpd_ros.sim.objects import ObjectSpec
-from tof_mpd_ros.sim.poses import look_at
 from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table, make_scene
 from tof_mpd_ros.sim.tof import ToFConfig, render_from_reference

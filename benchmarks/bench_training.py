@@ -37,8 +37,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.camera import Intrinsics
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig
 from tof_mpd_ros.frame import ToFFrame
 from tof_mpd_ros.training import TrainConfig, train

@@ -25,8 +25,11 @@ import json
 import os
 import time
 
+from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
 import numpy as np
-from bench_machine import cpu_model
 
 from tof_mpd_ros.correction.default_weights import default_weights_path
 from tof_mpd_ros.correction.edges import GT_HIGH_MM, GT_LOW_MM, ground_truth_edges

@@ -20,11 +20,13 @@ import json
 import os
 import time
 
-from bench_machine import cpu_model
+from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
 
-from tof_mpd_ros.cli.calibrate import load_calibration
-from tof_mpd_ros.cli.frame_files import iter_frames
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
+from tof_mpd_ros.calibration import load_calibration
 from tof_mpd_ros.evaluation.components import evaluate_model
+from tof_mpd_ros.recordings import iter_frames
 from tof_mpd_ros.training import TrainConfig, train
 
 

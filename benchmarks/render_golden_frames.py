@@ -34,10 +34,14 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from tof_mpd_ros.machine import cpu_model, set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before numba and torch load OpenMP (it reads the policy once)
+
 import numpy as np
-from bench_machine import cpu_model
 
 from tof_mpd_ros.camera import Intrinsics
+from tof_mpd_ros.pose import look_at
 from tof_mpd_ros.sim.cell import CameraModel
 from tof_mpd_ros.sim.objects import ObjectSpec
 from tof_mpd_ros.sim.pathtrace import (
@@ -54,7 +58,6 @@ from tof_mpd_ros.sim.pathtrace import (
 )
 from tof_mpd_ros.sim.pathtrace.golden import write_golden
 from tof_mpd_ros.sim.pathtrace.render import versions
-from tof_mpd_ros.sim.poses import look_at
 from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table
 from tof_mpd_ros.sim.tof import ToFConfig

@@ -277,8 +277,8 @@ def machine() -> dict[str, object]:
         text = ""
     model = lscpu_model(text)
     if model is None:
-        sys.path.insert(0, str(Path(__file__).resolve().parent))
-        from bench_machine import cpu_model
+        sys.path.insert(0, str(REPO))  # the checkout's package, as the nodes get it
+        from tof_mpd_ros.machine import cpu_model
         model = cpu_model()
     return {"cpu": model, "cores": os.cpu_count(),
             "load_average_1_5_15": [round(x, 2) for x in os.getloadavg()]}

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from tof_mpd_ros.machine import set_openmp_wait_policy
+
 #: ROS domain IDs a test run owns: a block of this many consecutive IDs. The test process's own
 #: (``ROS_DOMAIN_ID``) is the block's first; node tests take theirs with
 #: ``ros_harness.domain_id(offset)``, a fixed offset per test file.
@@ -61,6 +63,10 @@ os.environ["ROS_DOMAIN_ID"] = os.environ["TOF_MPD_TEST_DOMAIN_BASE"]
 os.environ.setdefault("ROS_LOG_DIR", tempfile.mkdtemp(prefix="tof_mpd_ros_log_"))
 os.environ.setdefault("HOME", tempfile.gettempdir())
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+# The test session is an entry point: like tof-mpd and the nodes, it chooses the OpenMP wait
+# policy before torch loads OpenMP (the processes it starts inherit it).
+set_openmp_wait_policy()
 
 try:  # keep the 2-core machine usable by parallel test processes
     import torch

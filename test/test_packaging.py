@@ -6,6 +6,7 @@ import os
 import shutil
 import subprocess
 import sys
+import textwrap
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -15,6 +16,30 @@ REPO = Path(__file__).resolve().parents[1]
 NODE_EXECUTABLES = ("corrector", "collector", "sim_cell")
 ALGORITHM_PACKAGES = ("sim", "recordings", "training", "correction", "evaluation", "mismatch")
 VIEWS = sorted((REPO / "views").glob("*.*"))  # RViz2 config and Foxglove layout
+#: the reports' Jinja2 templates and stylesheet (package data of tof_mpd_ros.templates)
+TEMPLATES = sorted(p.name for p in (REPO / "tof_mpd_ros" / "templates").iterdir()
+                   if p.is_file() and p.suffix != ".py")
+
+
+def check_installed_templates(site: Path) -> None:
+    """The copy of the package installed under ``site`` finds every template through
+    importlib.resources and renders a page from it (run with only ``site`` on the path)."""
+    code = textwrap.dedent(f"""
+        from pathlib import Path
+        import tof_mpd_ros.templates as t
+        assert Path(t.__file__).resolve().is_relative_to(Path({str(site)!r}).resolve()), t.__file__
+        assert t.template_names() == {TEMPLATES!r}, t.template_names()
+        for name in t.template_names():
+            if not name.endswith(".css"):
+                t.environment(prose=name.endswith(".txt")).get_template(name)
+        page = t.render("components.html", title="x", plots=[], results={{
+            "n_frames": 0, "seconds_per_frame": 0.0, "summary_5mm": {{}}, "edges": {{}}}})
+        assert "border-collapse" in page
+        """)
+    done = subprocess.run([sys.executable, "-c", code], cwd=site.parent, capture_output=True,
+                          text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(site), "PYTHONSAFEPATH": "1"})
+    assert done.returncode == 0, done.stderr
 
 
 def ros2_run_path(prefix_path: str, package: str, executable: str) -> Path:
@@ -64,6 +89,40 @@ def test_algorithm_modules_import_without_ros() -> None:
     assert done.returncode == 0, done.stderr
 
 
+#: import names of the third-party libraries the package loads; some edit os.environ on import
+#: (cv2: LD_LIBRARY_PATH; scikit-learn: KMP_*), which is theirs to answer for
+DEPENDENCIES = ("numpy", "scipy", "torch", "cv2", "numba", "sklearn", "mcap", "mcap_ros2", "yaml",
+                "tqdm", "matplotlib", "matplotlib.pyplot")
+
+
+def test_importing_the_package_leaves_the_environment_alone() -> None:
+    """``import tof_mpd_ros`` changes no environment variable, and nor does any algorithm module
+    or the CLI's (beyond what their third-party libraries do): the entry points choose thread
+    policies (tof_mpd_ros.machine). Run in an interpreter started with a clean environment."""
+    code = textwrap.dedent(f"""
+        import importlib, os, pkgutil
+        def changes(before):
+            keys = before.keys() | os.environ.keys()
+            return {{k: os.environ.get(k) for k in keys if before.get(k) != os.environ.get(k)}}
+        before = dict(os.environ)
+        import tof_mpd_ros
+        assert not changes(before), ("import tof_mpd_ros", changes(before))
+        for name in {DEPENDENCIES!r}:
+            importlib.import_module(name)
+        before = dict(os.environ)
+        import tof_mpd_ros.machine, tof_mpd_ros.cli.main
+        for sub in {ALGORITHM_PACKAGES!r}:
+            pkg = importlib.import_module("tof_mpd_ros." + sub)
+            for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + "."):
+                importlib.import_module(m.name)
+        assert not changes(before), ("the modules", changes(before))
+        """)
+    clean = {"PATH": os.environ.get("PATH", "/usr/bin:/bin"), "PYTHONPATH": str(REPO)}
+    done = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=clean, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+
+
 @pytest.mark.skipif(shutil.which("colcon", path=str(Path(sys.executable).parent)) is None,
                     reason="colcon is installed by the 'test' extra")
 def test_colcon_build_installs_resolvable_executables(tmp_path: Path) -> None:
@@ -82,6 +141,9 @@ def test_colcon_build_installs_resolvable_executables(tmp_path: Path) -> None:
     for view in VIEWS:
         assert (prefix / "share/tof_mpd_ros/views" / view.name).is_file(), view.name
     site = next(prefix.glob("lib/python3*/site-packages"))
+    for name in TEMPLATES:
+        assert (site / "tof_mpd_ros" / "templates" / name).is_file(), name
+    check_installed_templates(site)
     env = {**os.environ, "PYTHONPATH": str(site)}
     for exe in NODE_EXECUTABLES:
         path = ros2_run_path(str(prefix), "tof_mpd_ros", exe)
@@ -105,7 +167,8 @@ def test_pip_install_resolves_executables_like_ros2_run() -> None:
 
 def test_wheel_installs_the_share_files(tmp_path: Path) -> None:
     """The wheel (what ``pip install .`` installs) carries the config files, launch files and
-    views into ``<prefix>/share/tof_mpd_ros`` (built from a copy: the checkout stays clean)."""
+    views into ``<prefix>/share/tof_mpd_ros`` and the report templates into the package, where
+    the installed package finds them (built from a copy: the checkout stays clean)."""
     import zipfile
 
     source = tmp_path / "src"
@@ -124,3 +187,8 @@ def test_wheel_installs_the_share_files(tmp_path: Path) -> None:
     expected += [f"launch/{p.name}" for p in (REPO / "launch").glob("*.py")]
     expected += [f"views/{p.name}" for p in VIEWS]
     assert VIEWS and not [e for e in expected if share + e not in names], sorted(names)
+    templates = [f"tof_mpd_ros/templates/{name}" for name in TEMPLATES]
+    assert TEMPLATES and not [t for t in templates if t not in names], sorted(names)
+    site = tmp_path / "site"
+    zipfile.ZipFile(wheel).extractall(site)
+    check_installed_templates(site)

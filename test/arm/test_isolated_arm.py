@@ -7,10 +7,10 @@ import time
 import numpy as np
 import pytest
 
+from tof_mpd_ros.arm import ur5e
 from tof_mpd_ros.arm.isolated import IsolatedArm
-from tof_mpd_ros.arm.ur_pose import matrix_to_pose_vector, pose_vector_to_matrix
 from tof_mpd_ros.errors import ArmError
-from tof_mpd_ros.sim import ur5e
+from tof_mpd_ros.pose import matrix_to_pose_vector, pose_vector_to_matrix
 
 # A child interpreter starts in about a second on an idle machine, far slower on a busy one: tests
 # that do not test the connect timeout give it this long.

@@ -11,11 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tof_mpd_ros.calibration import IntrinsicCalibration, save_calibration
 from tof_mpd_ros.camera import Intrinsics
-from tof_mpd_ros.cli.calibrate import save_calibration
 from tof_mpd_ros.cli.main import build_parser, main
 from tof_mpd_ros.cli.output import CliParser, OldOutputForm, add_output
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig
 from tof_mpd_ros.correction.pipeline import CorrectionModel
 from tof_mpd_ros.correction.weights import save_weights

@@ -9,16 +9,17 @@ import pytest
 from sim_helpers import small_camera
 
 from tof_mpd_ros.arm.isolated import IsolatedArm
+from tof_mpd_ros.arm.tool import DEFAULT_T_FLANGE_CAMERA_M
 from tof_mpd_ros.collection import session
-from tof_mpd_ros.collection.plan import load_plan, save_plan, sim_plan
+from tof_mpd_ros.collection.plan import load_plan, save_plan
 from tof_mpd_ros.collection.runner import run_plan
 from tof_mpd_ros.errors import CaptureError, InputError
+from tof_mpd_ros.pose import pose_m_to_mm
 from tof_mpd_ros.recordings import RecordingReader, RecordingWriter
 from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.dataset import scene_rng
-from tof_mpd_ros.sim.poses import pose_m_to_mm
 from tof_mpd_ros.sim.scene import make_scene
-from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M
+from tof_mpd_ros.sim.viewpoints import sim_plan
 
 HAND_EYE = DEFAULT_T_FLANGE_CAMERA_M
 START_S = 120.0  # the arm client's start-up on a busy machine (its connect timeout is not tested)

@@ -11,8 +11,8 @@ import dataclasses
 import numpy as np
 import pytest
 
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.camera import Intrinsics
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.depth_stream import DepthStreamCorrector, correction_m, points_m
 from tof_mpd_ros.correction.pipeline import CorrectionModel, GeodesicParams, correct
 from tof_mpd_ros.errors import InputError

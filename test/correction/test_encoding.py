@@ -127,22 +127,21 @@ def test_config_validation_and_shape_errors() -> None:
     assert EncodingConfig().n_features == 280 and EncodingConfig().n_boundary_features == 240
 
 
-def test_column_layout_holds_the_same_numbers() -> None:
-    from tof_mpd_ros.correction.encoding import encode_frame_columns
+def test_sampled_pixels_of_a_stack_hold_the_same_numbers() -> None:
+    """encode_pixels (training's batches) on chosen pixels of a stack == encode_frame's rows."""
+    from tof_mpd_ros.correction.encoding import encode_pixels, padded_planes
 
-    r, a = _random_frame(7)
+    frames = [_random_frame(s, 9, 13) for s in (5, 6, 7)]
+    r = np.stack([f[0] for f in frames])
+    a = np.stack([f[1] for f in frames])
     feats, valid = encode_frame(r, a, CFG)
-    (cols,) = encode_frame_columns(r, a, CFG)
-    keep = [i for i in range(121) if i != 60]
-    np.testing.assert_array_equal(cols.x_range.numpy()[keep].T, feats[:, :120].numpy())
-    np.testing.assert_array_equal(cols.x_amplitude.numpy()[keep].T, feats[:, 120:240].numpy())
-    assert not cols.x_range[60].any() and not cols.x_amplitude[60].any()   # centre row is 0
-    ok = valid.reshape(-1).numpy()
-    np.testing.assert_array_equal(cols.bin_range.numpy()[ok],
-                                  feats[:, 240:260].argmax(1).numpy()[ok])
-    np.testing.assert_array_equal(cols.bin_amplitude.numpy()[ok],
-                                  feats[:, 260:280].argmax(1).numpy()[ok])
-    np.testing.assert_array_equal(cols.valid.numpy(), valid[0].numpy())
+    planes = padded_planes(r, a, CFG)
+    np.testing.assert_array_equal(planes.valid, valid.numpy())
+    pick = np.random.default_rng(0).permutation(r.size)[:200]
+    for boundary_only in (False, True):
+        got = encode_pixels(planes.range_mm, planes.log_amplitude, planes.amplitude, pick, CFG,
+                            boundary_only=boundary_only)
+        np.testing.assert_array_equal(got, feats.numpy()[pick, :got.shape[1]])
 
 
 def test_fast_path_kernels_hold_the_same_numbers() -> None:

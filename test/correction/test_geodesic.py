@@ -214,3 +214,21 @@ def test_border_templates_equal_the_search():
     from tof_mpd_ros.correction.geodesic import _border_templates
     r, _, _, usable = _border_templates(81, 34, 41, 32.0)
     assert r > 0 and usable.sum() == (2 * r + 1) ** 2      # the templates were in play
+
+
+def test_the_kernels_graph_is_named() -> None:
+    """_prepare hands the kernels a Graph whose fields mean what their names say."""
+    from tof_mpd_ros.correction.geodesic import _MOVES, Graph, _prepare
+
+    rng = np.random.default_rng(3)
+    edges = rng.random((12, 17)) < 0.1
+    valid = rng.random((12, 17)) > 0.1
+    graph, length = _prepare(edges, valid, 9, 1.0, None)
+    assert isinstance(graph, Graph) and (graph.h, graph.w, graph.k) == (12, 17, 9)
+    np.testing.assert_array_equal(graph.valid, valid.ravel())
+    np.testing.assert_array_equal(graph.obstacle, (edges | ~valid).ravel())
+    np.testing.assert_array_equal(graph.move_off, _MOVES[:, 0] * 17 + _MOVES[:, 1])
+    np.testing.assert_array_equal(graph.move_diag, _MOVES[:, 2] == 1)
+    assert graph.tmpl_off.shape == graph.tmpl_rank.shape == (9,)
+    assert not graph.tmpl_ok[edges.ravel()].any()       # an obstacle in the footprint
+    assert graph.next_axis.shape == graph.next_diag.shape == length.shape

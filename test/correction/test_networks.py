@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 from torch import nn
@@ -75,15 +76,25 @@ def test_feature_width_errors() -> None:
         BoundaryNets()(torch.zeros(5))
 
 
-def test_fused_inference_equals_modules() -> None:
-    import numpy as np
+def _run_patch_nets(nets, r, a, cfg):
+    """PatchNets over a whole frame as one band: (correction, best, group), each (H*W,)."""
+    from tof_mpd_ros.correction.encoding import encode_frame, padded_planes
+    from tof_mpd_ros.correction.networks import FrameBins, HeadOutputs
 
-    from tof_mpd_ros.correction.encoding import (
-        EncodingConfig,
-        encode_frame,
-        encode_frame_columns,
-    )
-    from tof_mpd_ros.correction.networks import FusedPatchNets
+    feats, _ = encode_frame(r, a, cfg, boundary_only=True)
+    planes = padded_planes(r[None], a[None], cfg)
+    n = r.size
+    frame = FrameBins(planes.bin_range[0], planes.bin_amplitude[0], planes.valid[0].ravel())
+    out = HeadOutputs(np.zeros(n, np.float32), np.zeros(n, np.float32), np.zeros(n, np.int8))
+    nets.heads(nets.first_layer(feats), n, 0, frame, True, True, out, nets.scratch())
+    return out
+
+
+@pytest.mark.parametrize("backend", ["numba", "torch"])
+def test_patch_nets_equal_modules(backend: str) -> None:
+    """Both backends of the one inference path compute the modules' function."""
+    from tof_mpd_ros.correction.encoding import EncodingConfig, encode_frame
+    from tof_mpd_ros.correction.networks import PatchNets
 
     rng = np.random.default_rng(0)
     r = (300 + 40 * (rng.random((30, 35)) > 0.7) + rng.normal(0, 2, (30, 35))).astype(np.float32)
@@ -92,18 +103,57 @@ def test_fused_inference_equals_modules() -> None:
     cfg = EncodingConfig(amplitude_max=1.0)
     f, g = RangeRecoveryNet(generator=_gen(11)), BoundaryNets(generator=_gen(12))
     feats, valid = encode_frame(r, a, cfg)
-    (cols,) = encode_frame_columns(r, a, cfg)
-    ok = valid.reshape(-1)
+    ok = valid.reshape(-1).numpy()
+    out = _run_patch_nets(PatchNets(f, g, 11, 20, backend=backend), r, a, cfg)
     with torch.no_grad():
-        corr, probs = FusedPatchNets(f, g, 11, 20)(cols.x_range, cols.x_amplitude,
-                                                   cols.bin_range, cols.bin_amplitude)
-        torch.testing.assert_close(corr[ok], f(feats)[ok], rtol=0, atol=1e-4)
-        torch.testing.assert_close(probs.T[ok], g.probabilities(feats)[ok], rtol=0, atol=1e-5)
-        corr16, probs16 = FusedPatchNets(f, g, 11, 20, "bfloat16")(
-            cols.x_range, cols.x_amplitude, cols.bin_range, cols.bin_amplitude)
-    assert (corr16 - corr)[ok].abs().max() < 0.1          # mm
-    assert (probs16 - probs)[:, ok].abs().max() < 0.02
+        want_f = f(feats).numpy()
+        probs = g.probabilities(feats).numpy()
+    np.testing.assert_allclose(out.correction[ok], want_f[ok], rtol=0, atol=1e-4)
+    np.testing.assert_allclose(out.best[ok], probs.max(1)[ok], rtol=0, atol=1e-5)
+    np.testing.assert_array_equal(out.group[ok], probs.argmax(1)[ok])
+    assert not out.best[~ok].any() and not out.group[~ok].any()
+    out16 = _run_patch_nets(PatchNets(f, g, 11, 20, "bfloat16", backend=backend), r, a, cfg)
+    assert np.abs(out16.correction - out.correction)[ok].max() < 0.1          # mm
+    assert np.abs(out16.best - out.best)[ok].max() < 0.02
     with pytest.raises(InputError, match="do not fit a 9x9"):
-        FusedPatchNets(f, g, 9, 20)
+        PatchNets(f, g, 9, 20, backend=backend)
     with pytest.raises(InputError, match="precision"):
-        FusedPatchNets(f, g, 11, 20, "float16")
+        PatchNets(f, g, 11, 20, "float16", backend=backend)
+
+
+def test_numba_backend_is_cpu_only() -> None:
+    from tof_mpd_ros.correction.networks import PatchNets
+
+    f, g = RangeRecoveryNet(generator=_gen(11)), BoundaryNets(generator=_gen(12))
+    assert PatchNets(f, g, 11, 20).backend == "numba"
+    with pytest.raises(InputError, match="backend"):
+        PatchNets(f, g, 11, 20, device="meta", backend="numba")
+    with pytest.raises(InputError, match="backend"):
+        PatchNets(f, g, 11, 20, backend="onnx")
+
+
+def test_the_one_relayout_feeds_both_backends(monkeypatch) -> None:
+    """fuse_weights is the only source of the inference weights, for either backend."""
+    from tof_mpd_ros.correction import networks
+
+    f, g = RangeRecoveryNet(generator=_gen(11)), BoundaryNets(generator=_gen(12))
+    made = []
+    real = networks.fuse_weights
+
+    def recording(*args):
+        made.append(real(*args))
+        return made[-1]
+
+    monkeypatch.setattr(networks, "fuse_weights", recording)
+    for backend in ("numba", "torch"):
+        nets = networks.PatchNets(f, g, 11, 20, backend=backend)
+        assert nets.weights is made[-1]
+        np.testing.assert_array_equal(nets.weight.numpy(), made[-1].first)
+    assert len(made) == 2
+    w = real(f, g, 11, 20)
+    # Head k's second layer is g.w2[k] transposed to (out, in); F's first layer is split into
+    # its [x_R x_A] columns (stacked over the heads' first layers) and its one-hot tables.
+    np.testing.assert_array_equal(w.g_w2[2], g.w2[2].detach().numpy().T)
+    np.testing.assert_array_equal(w.first[:40], f.layers[0].weight.detach().numpy()[:, :240])
+    np.testing.assert_array_equal(w.first[40 + 3 * 40:], g.first.weight.detach().numpy()[120:])
+    np.testing.assert_array_equal(w.table_amp, f.layers[0].weight.detach().numpy()[:, 260:])

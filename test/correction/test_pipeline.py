@@ -10,7 +10,7 @@ import pytest
 import torch
 
 import tof_mpd_ros.correction as correction_pkg
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig
 from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
 from tof_mpd_ros.errors import InputError
@@ -148,17 +148,14 @@ def test_bfloat16_precision_stays_close(geodesic_stub) -> None:
 
 
 def _torch_path(model: CorrectionModel, r: np.ndarray, a: np.ndarray):
-    """The torch path (column encoding + FusedPatchNets), which the GPU uses."""
-    from tof_mpd_ros.correction.encoding import encode_frame_columns
-    from tof_mpd_ros.correction.networks import FusedPatchNets
-    from tof_mpd_ros.correction.pipeline import CorrectionResult, _correct_one
+    """The engine with PatchNets' torch backend (what a GPU runs), here on the CPU."""
+    from tof_mpd_ros.correction.pipeline import CorrectionResult, _Engine
 
     a3 = a[None].astype(np.float32)
     cal = model.calibration.apply(r[None], a3)
-    fused = FusedPatchNets(model.range_net, model.boundary_nets, model.encoding.patch_size,
-                           model.encoding.n_bins)
-    (enc,) = encode_frame_columns(cal, a3, model.encoding)
-    return CorrectionResult(*_correct_one(model, fused, enc, cal[0], True, True))
+    engine = _Engine(model, "float32", 1, torch.device("cpu"), backend="torch")
+    assert engine.nets.backend == "torch" and len(engine.bands) > 1
+    return CorrectionResult(*engine.correct(cal[0], a3[0], True, True, model.geodesic))
 
 
 def _edgy_model(h: int, w: int) -> CorrectionModel:
@@ -184,7 +181,7 @@ def _edgy_frame(h: int, w: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return r, a
 
 
-def test_fast_path_equals_torch_path_and_threads_do_not_matter() -> None:
+def test_numba_backend_equals_torch_backend_and_threads_do_not_matter() -> None:
     h, w = 36, 44
     model = _edgy_model(h, w)
     for seed in (0, 1):
@@ -214,3 +211,22 @@ def test_fast_path_sees_weights_changed_in_place() -> None:
         model.range_net.layers[-1].bias.add_(0.1)
     after = correct(model, r, a, use_boundary=False)
     np.testing.assert_allclose(after.range_mm - before.range_mm, 1.5, atol=1e-3)  # 15 * 0.1
+
+
+def test_correct_runs_the_one_inference_path(monkeypatch) -> None:
+    """correct() reaches F and G only through PatchNets (numba backend on the CPU)."""
+    from tof_mpd_ros.correction import networks
+
+    calls = []
+    real = networks.PatchNets.heads
+
+    def recording(self, *args):
+        calls.append(self.backend)
+        return real(self, *args)
+
+    monkeypatch.setattr(networks.PatchNets, "heads", recording)
+    model = _edgy_model(36, 44)
+    r, a = _edgy_frame(36, 44, 0)
+    res = correct(model, r, a, threads=1)
+    assert calls and set(calls) == {"numba"}
+    assert res.edges.any()

@@ -9,11 +9,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from oracles import reference_pipeline as ref
 
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.correction import geodesic
-from tof_mpd_ros.correction import reference_pipeline as ref
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig, encode_frame
 from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
 from tof_mpd_ros.errors import InputError
@@ -154,3 +154,19 @@ def test_reference_takes_one_frame(untrained, frames) -> None:
         ref.reference_correct(untrained, f.range_mm[None], f.amplitude[None])
     with pytest.raises(InputError):
         ref.reference_correct(untrained, f.range_mm[:, :-1], f.amplitude[:, :-1])
+
+
+def test_the_oracle_is_not_shipped() -> None:
+    """The oracle lives under test/ only: not a module of the package, imported by none."""
+    import importlib.util
+    from pathlib import Path
+
+    import tof_mpd_ros
+
+    assert importlib.util.find_spec("tof_mpd_ros.correction.reference_pipeline") is None
+    assert Path(ref.__file__).parent.name == "oracles"
+    package = Path(tof_mpd_ros.__file__).parent
+    users = [p for p in package.rglob("*.py")
+             if "import oracles" in (text := p.read_text(encoding="utf-8"))
+             or "from oracles" in text]
+    assert users == []

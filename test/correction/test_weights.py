@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig, encode_frame
 from tof_mpd_ros.correction.pipeline import CorrectionModel
 from tof_mpd_ros.correction.weights import array_digest, load_weights, save_weights

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.camera import Intrinsics
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig
 from tof_mpd_ros.correction.pipeline import CorrectionModel
 from tof_mpd_ros.errors import InputError
@@ -336,3 +336,26 @@ def test_demo_summary_prints_the_ranking_and_differences(capsys: pytest.CaptureF
     out = capsys.readouterr().out
     assert "Ranking at 5 mm" in out and "differs from the paper (second at 5 mm" in out
     assert "proposed_beats_every_baseline_whole: met" in out
+
+
+def test_the_stages_go_through_the_one_component_loop(bench_run, monkeypatch) -> None:
+    """The benchmark's component analysis is ``tof-mpd evaluate``'s: the same numbers on the
+    same frames, from :class:`ComponentTally` (one ``add`` per test frame with a reference)."""
+    from tof_mpd_ros.evaluation import components
+
+    result, _ = bench_run
+    alone = components.evaluate_model(_model(), _frames(2, 1, 3)).to_dict()
+    ours = result.components.to_dict()
+    for key in ("n_frames", "stages", "edges", "summary_5mm", "relative_improvement_5mm"):
+        assert ours[key] == alone[key], key
+    assert alone["regions"] and alone["g_operating_point"]      # evaluate's diagnostics
+    assert ours["regions"] == {} and ours["g_operating_point"] == {}   # as before the merge
+
+    frames: list[int] = []
+    add = components.ComponentTally.add
+    monkeypatch.setattr(components.ComponentTally, "add",
+                        lambda self, *args: frames.append(1) or add(self, *args))
+    grids = {"JBF": GridSpec(grid={"sigma_space": [1.0], "sigma_color": [0.1]})}
+    run_benchmark(_model(), _frames(1, 2, 1), _frames(3, 1, 2),
+                  BenchmarkConfig(grids=grids, n_examples=0, progress=False))
+    assert len(frames) == 2

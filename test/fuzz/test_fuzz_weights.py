@@ -39,8 +39,7 @@ from fuzz_support import (
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from tof_mpd_ros.cli.calibrate import load_calibration, save_calibration
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+from tof_mpd_ros.calibration import IntrinsicCalibration, load_calibration, save_calibration
 from tof_mpd_ros.correction.pipeline import CorrectionModel
 from tof_mpd_ros.correction.weights import array_digest, load_weights, save_weights
 from tof_mpd_ros.errors import CalibrationError, TofMpdError, WeightsError

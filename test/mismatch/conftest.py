@@ -11,12 +11,12 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from oracles.analytic_scenes import box_on_table_scene, raycast
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.frame import ToFFrame
+from tof_mpd_ros.pose import rotvec_to_matrix
 from tof_mpd_ros.sim.tof import ToFConfig, render_tof
-from tof_mpd_ros.sim.tof.analytic import box_on_table_scene, raycast
-from tof_mpd_ros.sim.tof.warp import rotation_matrix
 
 SMALL = Intrinsics.from_fov(48, 36, 74.0)
 PERIOD_S = 0.1
@@ -29,7 +29,7 @@ def camera_x_mm(t_s: float) -> float:
 
 def _scene_from(x_mm: float, rotvec: np.ndarray, shift_mm: np.ndarray) -> list:
     """Solids in the frame of a camera at (x_mm, 0, 0) + shift, rotated by rotvec."""
-    rot = rotation_matrix(rotvec)
+    rot = rotvec_to_matrix(rotvec)
     t = np.array([x_mm, 0.0, 0.0]) + shift_mm
     out = []
     for s in box_on_table_scene(table_mm=320.0, height_mm=110.0, wall_x_mm=20.0,

@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from oracles.analytic_scenes import box_on_table_scene, raycast
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.mismatch import analyse
@@ -20,7 +21,6 @@ from tof_mpd_ros.mismatch.profile import (
     with_amplitude_units,
 )
 from tof_mpd_ros.sim.tof import ToFConfig, render_from_reference
-from tof_mpd_ros.sim.tof.analytic import box_on_table_scene, raycast
 
 NOMINAL = ToFConfig.nominal()
 SMALL = Intrinsics.from_fov(48, 36, 74.0)

@@ -15,10 +15,10 @@ rclpy = pytest.importorskip("rclpy")
 
 from ros_harness import domain_id, start_node, stop_node  # noqa: E402
 
+from tof_mpd_ros.arm.tool import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
 from tof_mpd_ros.collection import session  # noqa: E402
-from tof_mpd_ros.collection.plan import sim_plan  # noqa: E402
 from tof_mpd_ros.recordings import RecordingReader  # noqa: E402
-from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
+from tof_mpd_ros.sim.viewpoints import sim_plan  # noqa: E402
 
 DOMAIN = domain_id(1)  # this run's own (test/conftest.py)
 # Timeouts for a busy machine: the arm client is a child interpreter, a frame a fresh render.
@@ -36,7 +36,7 @@ def sim_cell(tmp_path_factory: pytest.TempPathFactory):
 
 def assert_trainable(frames: list) -> None:
     """The recorded frames train F and G, and the model corrects a recorded frame."""
-    from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+    from tof_mpd_ros.calibration import IntrinsicCalibration
     from tof_mpd_ros.correction.pipeline import correct
     from tof_mpd_ros.training.trainer import TrainConfig, train
 

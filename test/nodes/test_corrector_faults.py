@@ -34,7 +34,7 @@ from test_corrector_node import (  # noqa: E402
     wait_for_corrector,
 )
 
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration  # noqa: E402
+from tof_mpd_ros.calibration import IntrinsicCalibration  # noqa: E402
 from tof_mpd_ros.correction.depth_stream import DROP_REASONS  # noqa: E402
 from tof_mpd_ros.correction.pipeline import CorrectionModel  # noqa: E402
 from tof_mpd_ros.correction.weights import save_weights  # noqa: E402

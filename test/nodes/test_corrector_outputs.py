@@ -44,8 +44,8 @@ from rclpy.qos import (  # noqa: E402
 from ros_harness import domain_id, spin_until, start_node, stop_node  # noqa: E402
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField  # noqa: E402
 
+from tof_mpd_ros.calibration import IntrinsicCalibration  # noqa: E402
 from tof_mpd_ros.camera import Intrinsics  # noqa: E402
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration  # noqa: E402
 from tof_mpd_ros.correction.depth_stream import (  # noqa: E402
     DepthStreamCorrector,
     StreamResult,

@@ -19,19 +19,18 @@ rclpy = pytest.importorskip("rclpy")
 
 from ros_harness import domain_id, start_node, stop_node  # noqa: E402
 
-from tof_mpd_ros.arm.ur_pose import matrix_to_pose_vector  # noqa: E402
-from tof_mpd_ros.cli.main import main  # noqa: E402
-from tof_mpd_ros.collection import session  # noqa: E402
-from tof_mpd_ros.collection.hand_eye import pose_difference  # noqa: E402
-from tof_mpd_ros.collection.hand_eye_io import (  # noqa: E402
+from tof_mpd_ros.arm.tool import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
+from tof_mpd_ros.calibration.hand_eye import pose_difference  # noqa: E402
+from tof_mpd_ros.calibration.hand_eye_io import (  # noqa: E402
     KEY_CALIBRATION_FILE,
     read_hand_eye_recording,
 )
-from tof_mpd_ros.collection.hand_eye_sim import perturb_pose  # noqa: E402
+from tof_mpd_ros.cli.main import main  # noqa: E402
+from tof_mpd_ros.collection import session  # noqa: E402
+from tof_mpd_ros.pose import matrix_to_pose_vector, pose_mm_to_m  # noqa: E402
 from tof_mpd_ros.recordings import RecordingReader, convert  # noqa: E402
-from tof_mpd_ros.sim.poses import pose_mm_to_m  # noqa: E402
+from tof_mpd_ros.sim.hand_eye import perturb_pose  # noqa: E402
 from tof_mpd_ros.sim.structured_light import StructuredLightConfig  # noqa: E402
-from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
 
 # This run's own domains (test/conftest.py); the scene sim_cell starts early (its first frame
 # takes a while) on a domain of its own.
@@ -187,14 +186,14 @@ def test_a_bad_hand_eye_file_stops_the_collector_before_it_moves(tmp_path) -> No
 def test_a_resumed_calibration_session_reads_as_one(tmp_path) -> None:
     """Parts written view by view (as the collector does) merge in stamp order, and the views
     they hold are matched on the TCP pose (no rendering: synthetic images)."""
+    from tof_mpd_ros.calibration.hand_eye_board import CalibrationBoard
+    from tof_mpd_ros.calibration.hand_eye_io import hand_eye_custom_data, write_hand_eye_view
     from tof_mpd_ros.camera import Intrinsics
-    from tof_mpd_ros.collection.hand_eye_detect import CalibrationBoard
-    from tof_mpd_ros.collection.hand_eye_io import hand_eye_custom_data, write_hand_eye_view
     from tof_mpd_ros.collection.hand_eye_plan import default_tof_intrinsics
     from tof_mpd_ros.collection.plan import PlannedView
     from tof_mpd_ros.frame import ToFFrame
+    from tof_mpd_ros.pose import make_pose
     from tof_mpd_ros.recordings import RecordingWriter
-    from tof_mpd_ros.sim.poses import make_pose
 
     tof, sl = default_tof_intrinsics(), Intrinsics.from_fov(64, 48, 65.0)
     rng = np.random.default_rng(0)

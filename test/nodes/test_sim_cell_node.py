@@ -18,9 +18,9 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy  # noqa: E
 from ros_harness import domain_id, spin_until, start_node, stop_node  # noqa: E402
 from sensor_msgs.msg import Image  # noqa: E402
 
-from tof_mpd_ros.collection.plan import sim_plan  # noqa: E402
+from tof_mpd_ros.arm.tool import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
 from tof_mpd_ros.nodes.ros_messages import pose_message, stamp_ns  # noqa: E402
-from tof_mpd_ros.sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M  # noqa: E402
+from tof_mpd_ros.sim.viewpoints import sim_plan  # noqa: E402
 
 DOMAIN = domain_id(9)
 DEPTH = "/tof/depth/image_raw"

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from tof_mpd_ros.camera import Intrinsics
+from tof_mpd_ros.pose import make_pose
 from tof_mpd_ros.sim.cell import CameraModel
-from tof_mpd_ros.sim.poses import make_pose
 
 
 def small_camera() -> CameraModel:

@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 from sim_helpers import looking_down, small_camera
 
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.camera import Intrinsics
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.errors import SimulationError
+from tof_mpd_ros.pose import make_pose
 from tof_mpd_ros.sim.cell import CameraModel, SimCell
 from tof_mpd_ros.sim.checkerboard import CheckerboardConfig, calibration_poses
-from tof_mpd_ros.sim.poses import make_pose
 from tof_mpd_ros.sim.scene import make_box_scene
 from tof_mpd_ros.sim.tof import ToFConfig
 

@@ -9,13 +9,13 @@ import pytest
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.errors import InputError
+from tof_mpd_ros.pose import make_pose, rot_y
 from tof_mpd_ros.sim.checkerboard import (
     CalibrationPoseConfig,
     CheckerboardConfig,
     calibration_poses,
     render_checkerboard,
 )
-from tof_mpd_ros.sim.poses import make_pose, rot_y
 
 INTR = Intrinsics(fx=200.0, fy=200.0, cx=60.0, cy=45.0, width=121, height=91)
 

@@ -12,32 +12,30 @@ import math
 
 import numpy as np
 import pytest
+from oracles.raycast_reference import cast_rays_reference
+from oracles.structured_light_reference import (
+    nearest_cluster_medians_reference,
+    sl_scan_reference,
+)
 from sim_helpers import small_camera
 
+from tof_mpd_ros.arm.viewpoints import ViewpointConfig
+from tof_mpd_ros.pose import invert_pose, rotate, transform_points
 from tof_mpd_ros.sim.cell import SimCell
 from tof_mpd_ros.sim.checkerboard import calibration_poses, render_checkerboard
 from tof_mpd_ros.sim.dataset import scene_rng
 from tof_mpd_ros.sim.objects import ObjectSpec
-from tof_mpd_ros.sim.poses import invert_pose, rotate, transform_points
-from tof_mpd_ros.sim.raycast import (
-    RayHits,
-    camera_rays,
-    cast_rays,
-    cast_rays_reference,
-    render_surface,
-)
+from tof_mpd_ros.sim.raycast import RayHits, camera_rays, cast_rays, render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table, make_scene
 from tof_mpd_ros.sim.structured_light import (
     FusionConfig,
     _nearest_cluster_medians,
-    _nearest_cluster_medians_reference,
     fuse_points,
     scan_poses,
     sl_scan,
-    sl_scan_reference,
 )
 from tof_mpd_ros.sim.tof import ToFConfig, render_tof
-from tof_mpd_ros.sim.viewpoints import ViewpointConfig, plan_viewpoints
+from tof_mpd_ros.sim.viewpoints import plan_viewpoints
 
 
 def _assert_same_hits(a: RayHits, b: RayHits) -> None:
@@ -98,7 +96,7 @@ def test_fusion_kernel_is_identical_to_the_global_sort() -> None:
     for fusion in (FusionConfig(), FusionConfig(cluster_gap_mm=0.5, min_points=3),
                    FusionConfig(min_points=1), FusionConfig(min_points=40)):
         got = _nearest_cluster_medians(pixel, ranges, fusion)
-        want = _nearest_cluster_medians_reference(pixel, ranges, fusion)
+        want = nearest_cluster_medians_reference(pixel, ranges, fusion)
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
 
@@ -169,7 +167,7 @@ def _fuse_points_numpy(points: np.ndarray, tof_to_base_mm: np.ndarray, intrinsic
               & (uv[:, 1] < intrinsics.height))
     pixel = uv[inside, 1] * intrinsics.width + uv[inside, 0]
     out = np.full(intrinsics.height * intrinsics.width, np.nan, dtype=np.float32)
-    pixels, medians = _nearest_cluster_medians_reference(
+    pixels, medians = nearest_cluster_medians_reference(
         pixel, np.linalg.norm(local[inside], axis=1), fusion)
     out[pixels] = medians
     return out.reshape(intrinsics.shape)

@@ -21,6 +21,7 @@ if importlib.util.find_spec("mitransient") is None:  # importing it needs a mits
     pytest.skip("the [pathtrace] extra (mitransient) is not installed", allow_module_level=True)
 
 from tof_mpd_ros.camera import Intrinsics
+from tof_mpd_ros.pose import look_at
 from tof_mpd_ros.sim.objects import ObjectSpec
 from tof_mpd_ros.sim.pathtrace import (
     DIRECT_ONLY,
@@ -35,7 +36,6 @@ from tof_mpd_ros.sim.pathtrace import (
     sensor_rays,
     spot_profile,
 )
-from tof_mpd_ros.sim.poses import look_at
 from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table, make_box_scene
 from tof_mpd_ros.sim.surface import SurfaceImage

@@ -22,6 +22,7 @@ from sim_helpers import small_camera
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.cli.main import main
 from tof_mpd_ros.errors import InputError, SimulationError
+from tof_mpd_ros.pose import look_at, pose_m_to_mm
 from tof_mpd_ros.recordings import RecordingReader
 from tof_mpd_ros.sim.cell import CameraModel, SimCell
 from tof_mpd_ros.sim.dataset import (
@@ -52,7 +53,6 @@ from tof_mpd_ros.sim.pathtrace.materials import (
     single_scattering_albedo,
     surface_bsdf,
 )
-from tof_mpd_ros.sim.poses import look_at, pose_m_to_mm
 from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, make_box_scene, make_scene
 from tof_mpd_ros.sim.tof import ToFConfig

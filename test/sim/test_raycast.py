@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+import importlib.util
 import math
 
 import numpy as np
 import pytest
+from oracles.raycast_reference import visible_from
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.errors import InputError
+from tof_mpd_ros.pose import invert_pose, look_at, transform_points
+from tof_mpd_ros.sim import raycast, structured_light
 from tof_mpd_ros.sim.objects import ObjectSpec
-from tof_mpd_ros.sim.poses import invert_pose, look_at, transform_points
-from tof_mpd_ros.sim.raycast import cast_rays, render_surface, visible_from
+from tof_mpd_ros.sim.raycast import cast_rays, render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table, make_box_scene
 
 # Odd-sized grid with the principal point on the central pixel.
@@ -161,3 +164,49 @@ def test_bad_inputs_raise_input_error() -> None:
         cast_rays(scene, np.zeros((3, 3)), np.ones((4, 3)) / math.sqrt(3))
     with pytest.raises(InputError, match="camera_to_base_mm"):
         render_surface(scene, np.eye(3), INTR)
+
+
+def test_packed_scene_columns_are_named_by_the_index_constants() -> None:
+    scene = _one_of_each()
+    packed = raycast.pack_scene(scene)
+    table = scene.table
+    assert packed.table.shape == (raycast.N_TABLE,)
+    np.testing.assert_array_equal(
+        packed.table[[raycast.TABLE_Z, raycast.TABLE_CX, raycast.TABLE_CY, raycast.TABLE_HALF_X,
+                      raycast.TABLE_HALF_Y, raycast.TABLE_ALBEDO]],
+        [table.height_mm, *table.centre_xy_mm, *table.half_extent_mm, table.albedo])
+    assert packed.geom.shape == (4, raycast.N_GEOM)
+    for obj, g, kind, planes, n in zip(scene.objects, packed.geom, packed.kind, packed.planes,
+                                       packed.n_planes, strict=True):
+        centre, radius = obj.bounding_sphere()
+        assert (g[raycast.GEOM_X], g[raycast.GEOM_Y], g[raycast.GEOM_Z]) == (
+            obj.x_mm, obj.y_mm, obj.z_mm)
+        assert g[raycast.GEOM_COS_YAW] == math.cos(obj.yaw_rad)
+        assert g[raycast.GEOM_SIN_YAW] == math.sin(obj.yaw_rad)
+        np.testing.assert_array_equal(
+            g[[raycast.GEOM_BOUND_X, raycast.GEOM_BOUND_Y, raycast.GEOM_BOUND_Z]], centre)
+        assert g[raycast.GEOM_BOUND_R] == radius and g[raycast.GEOM_BOUND_R2] == radius**2
+        assert g[raycast.GEOM_SHAPE_R] == obj.spec.dims_mm[0] / 2.0
+        assert g[raycast.GEOM_SHAPE_R2] == (obj.spec.dims_mm[0] / 2.0) ** 2
+        expected_kind = {"box": raycast.KIND_POLYHEDRON, "prism": raycast.KIND_POLYHEDRON,
+                         "cylinder": raycast.KIND_CYLINDER, "sphere": raycast.KIND_SPHERE}
+        assert kind == expected_kind[obj.spec.kind]
+        if kind == raycast.KIND_POLYHEDRON:
+            normals, offsets = obj.spec.polyhedron_planes()
+            assert n == len(offsets)
+            np.testing.assert_array_equal(
+                planes[:n, [raycast.PLANE_NX, raycast.PLANE_NY, raycast.PLANE_NZ]], normals)
+            np.testing.assert_array_equal(planes[:n, raycast.PLANE_OFFSET], offsets)
+        else:
+            assert n == 0
+
+
+def test_the_package_ships_one_ray_caster_and_no_oracle() -> None:
+    # The numpy ray caster, the point-visibility cast and the step-by-step SL scan are test
+    # oracles (test/oracles); the package keeps only the compiled kernels.
+    for module in (raycast, structured_light):
+        oracles = [name for name in vars(module)
+                   if name.endswith("_reference") or name in ("visible_from", "_Rays")]
+        assert oracles == [], module.__name__
+    # the exact convex-polyhedron caster is a test oracle too (test/oracles/analytic_scenes.py)
+    assert importlib.util.find_spec("tof_mpd_ros.sim.tof.analytic") is None

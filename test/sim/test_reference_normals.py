@@ -11,20 +11,21 @@ import math
 
 import numpy as np
 import pytest
+from oracles.analytic_scenes import groove_scene, plane_scene, raycast
 
+from tof_mpd_ros.arm.viewpoints import ViewpointConfig
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.errors import InputError
+from tof_mpd_ros.pose import look_at
 from tof_mpd_ros.sim.cell import CameraModel
 from tof_mpd_ros.sim.dataset import scene_rng
 from tof_mpd_ros.sim.objects import ObjectSpec
-from tof_mpd_ros.sim.poses import look_at
 from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table, make_scene
 from tof_mpd_ros.sim.structured_light import reference_range
 from tof_mpd_ros.sim.tof import reference
-from tof_mpd_ros.sim.tof.analytic import groove_scene, plane_scene, raycast
 from tof_mpd_ros.sim.tof.reference import normals_from_range, surface_from_reference
-from tof_mpd_ros.sim.viewpoints import ViewpointConfig, plan_viewpoints
+from tof_mpd_ros.sim.viewpoints import plan_viewpoints
 
 K = Intrinsics.ds325().crop(60, 48)
 NOISE_MM = 0.5  # structured-light reference noise, ~1.4 mm pixel spacing at 300 mm

@@ -10,9 +10,9 @@ import pytest
 from scipy.ndimage import median_filter
 
 from tof_mpd_ros.camera import Intrinsics
+from tof_mpd_ros.pose import look_at
 from tof_mpd_ros.sim.cell import CameraModel
 from tof_mpd_ros.sim.objects import ObjectSpec
-from tof_mpd_ros.sim.poses import look_at
 from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table
 from tof_mpd_ros.sim.tof import ToFConfig, render_from_reference, render_tof

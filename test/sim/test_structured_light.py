@@ -6,12 +6,14 @@ import math
 
 import numpy as np
 import pytest
+from oracles.raycast_reference import visible_from
 
+from tof_mpd_ros.arm.viewpoints import view_pose_mm
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.errors import InputError
+from tof_mpd_ros.pose import invert_pose, look_at, make_pose, rot_z, transform_points
 from tof_mpd_ros.sim.objects import ObjectSpec
-from tof_mpd_ros.sim.poses import invert_pose, look_at, make_pose, rot_z, transform_points
-from tof_mpd_ros.sim.raycast import render_surface, visible_from
+from tof_mpd_ros.sim.raycast import render_surface
 from tof_mpd_ros.sim.scene import PlacedObject, Scene, Table, make_box_scene
 from tof_mpd_ros.sim.structured_light import (
     FusionConfig,
@@ -21,7 +23,6 @@ from tof_mpd_ros.sim.structured_light import (
     scan_poses,
     sl_scan,
 )
-from tof_mpd_ros.sim.viewpoints import view_pose_mm
 
 TOF = Intrinsics.ds325().crop(180, 140)
 

@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from oracles.analytic_scenes import groove_scene, plane_scene, raycast
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.errors import InputError, SimulationError
@@ -18,7 +19,6 @@ from tof_mpd_ros.sim.tof import (
     render_tof,
     surface_from_reference,
 )
-from tof_mpd_ros.sim.tof.analytic import groove_scene, plane_scene, raycast
 
 K = Intrinsics.ds325().crop(60, 48)
 

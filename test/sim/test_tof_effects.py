@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from oracles.analytic_scenes import box_on_table_scene, plane_scene, raycast
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.sim.tof import (
@@ -15,7 +16,6 @@ from tof_mpd_ros.sim.tof import (
     render_from_reference,
     render_tof,
 )
-from tof_mpd_ros.sim.tof.analytic import box_on_table_scene, plane_scene, raycast
 from tof_mpd_ros.sim.tof.effects.pixel_offset import offset_pattern
 from tof_mpd_ros.sim.tof.effects.temperature_drift import drift_mm
 from tof_mpd_ros.sim.tof.effects.wiggling import wiggle_mm

@@ -10,6 +10,15 @@ import math
 
 import numpy as np
 import pytest
+from oracles.analytic_scenes import (
+    ConvexSolid,
+    box,
+    box_on_table_scene,
+    groove_scene,
+    half_space,
+    plane_scene,
+    raycast,
+)
 from scipy.ndimage import binary_dilation, binary_erosion
 
 from tof_mpd_ros.camera import Intrinsics
@@ -19,15 +28,6 @@ from tof_mpd_ros.sim.tof import (
     ToFConfig,
     render_from_reference,
     render_tof,
-)
-from tof_mpd_ros.sim.tof.analytic import (
-    ConvexSolid,
-    box,
-    box_on_table_scene,
-    groove_scene,
-    half_space,
-    plane_scene,
-    raycast,
 )
 from tof_mpd_ros.sim.tof.reference_world import world_from_surface
 from tof_mpd_ros.sim.tof.transport import indirect_phasor

@@ -1,5 +1,5 @@
 """AMCW ToF physics with numbers: direct return, amplitude law, phase wrapping, mixed pixels,
-noise scaling (SPEC §4)."""
+noise scaling (docs/physics.md)."""
 
 from __future__ import annotations
 
@@ -7,6 +7,7 @@ import math
 
 import numpy as np
 import pytest
+from oracles.analytic_scenes import box, half_space, plane_scene, raycast
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.sim.tof import (
@@ -15,7 +16,6 @@ from tof_mpd_ros.sim.tof import (
     render_from_reference,
     render_tof,
 )
-from tof_mpd_ros.sim.tof.analytic import box, half_space, plane_scene, raycast
 from tof_mpd_ros.sim.tof.effects.noise import range_noise_std_mm
 
 K = Intrinsics.ds325().crop(180, 140)

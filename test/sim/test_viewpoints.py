@@ -8,11 +8,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from tof_mpd_ros.arm.ur5e import camera_pose, link_frames
+from tof_mpd_ros.arm.viewpoints import ViewpointConfig, plan_views, view_pose_mm
 from tof_mpd_ros.errors import InputError, SimulationError
-from tof_mpd_ros.sim.poses import pose_m_to_mm
+from tof_mpd_ros.pose import pose_m_to_mm
 from tof_mpd_ros.sim.scene import SceneConfig, make_box_scene, make_scene
-from tof_mpd_ros.sim.ur5e import camera_pose, link_frames
-from tof_mpd_ros.sim.viewpoints import ViewpointConfig, plan_viewpoints, view_pose_mm
+from tof_mpd_ros.sim.viewpoints import plan_viewpoints
 
 
 def test_view_pose_geometry_by_hand() -> None:
@@ -95,3 +96,17 @@ def test_any_number_of_views_is_stratified() -> None:
     bands = [int((v.height_mm - 180.0) // (170.0 / 3)) for v in plan.viewpoints]
     sectors = [int(v.azimuth_deg // 180.0) for v in plan.viewpoints]
     assert bands == [0, 1, 2, 0] and sectors == [0, 0, 0, 1]
+
+
+def test_the_simulator_plans_with_the_arm_planner() -> None:
+    # sim.viewpoints only feeds a scene's geometry to the one planner, arm.viewpoints.plan_views.
+    scene = make_scene("train", np.random.default_rng(4))
+    config = ViewpointConfig(n_views=5)
+    ours = plan_viewpoints(scene, np.random.default_rng(9), config)
+    direct = plan_views(scene.objects_centroid_mm(), scene.top_height_mm(),
+                        scene.table.height_mm, np.random.default_rng(9), config)
+    assert ours.rejected == direct.rejected
+    np.testing.assert_array_equal(ours.target_mm, direct.target_mm)
+    for a, b in zip(ours.viewpoints, direct.viewpoints, strict=True):
+        np.testing.assert_array_equal(a.camera_to_base_mm, b.camera_to_base_mm)
+        np.testing.assert_array_equal(a.joints_rad, b.joints_rad)

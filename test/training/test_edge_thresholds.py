@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from synthetic_training_frames import synthetic_frames
 
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.pipeline import correct
 from tof_mpd_ros.correction.weights import load_weights, save_weights
 from tof_mpd_ros.evaluation.metrics import evaluate_frames

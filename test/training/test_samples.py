@@ -8,8 +8,8 @@ import torch
 from scipy.ndimage import binary_dilation
 from synthetic_training_frames import synthetic_frames
 
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction import edges
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig, encode_frame
 from tof_mpd_ros.errors import InputError
 from tof_mpd_ros.frame import ToFFrame

@@ -9,12 +9,12 @@ import pytest
 import torch
 from synthetic_training_frames import synthetic_frames
 
-from tof_mpd_ros.correction.calibration import IntrinsicCalibration
+from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.pipeline import correct
 from tof_mpd_ros.correction.weights import load_weights
-from tof_mpd_ros.errors import CalibrationError, InputError, WeightsError
+from tof_mpd_ros.errors import InputError, WeightsError
 from tof_mpd_ros.frame import ToFFrame
-from tof_mpd_ros.training import TrainConfig, fit_calibration, train
+from tof_mpd_ros.training import TrainConfig, train
 from tof_mpd_ros.training.trainer import split_frames
 
 H, W = 40, 48
@@ -115,32 +115,6 @@ def test_split_is_by_frame_and_seeded() -> None:
     tr, va = split_frames(10, 0.25, seed=1, groups=scenes)
     assert va and sorted(tr + va) == list(range(10))
     assert {scenes[i] for i in tr}.isdisjoint({scenes[i] for i in va})   # whole scenes
-
-
-def test_fit_calibration_from_checkerboard_frames() -> None:
-    rng = np.random.default_rng(0)
-    c0, c1, c2 = rng.normal(0, 10, (H, W)), rng.uniform(0.97, 1.03, (H, W)), rng.normal(
-        0, 5, (H, W))
-    boards = []
-    for _ in range(12):
-        true = rng.uniform(250, 500) + rng.normal(0, 20, (H, W))
-        amp = rng.uniform(0.1, 1.0, (H, W))
-        obs = (true - c0 - c2 * amp) / c1
-        boards.append(ToFFrame(obs, amp, frames_intrinsics(), reference_mm=true))
-    calib = fit_calibration(boards, ridge=1e-6)
-    np.testing.assert_allclose(calib.c1, c1, atol=1e-4)
-    with pytest.raises(CalibrationError, match="got none"):
-        fit_calibration([])
-    from dataclasses import replace
-
-    with pytest.raises(CalibrationError, match="frame 1 has no reference_mm"):
-        fit_calibration([boards[0], replace(boards[1], reference_mm=None)])
-
-
-def frames_intrinsics():
-    from tof_mpd_ros.camera import Intrinsics
-
-    return Intrinsics.from_fov(W, H, 40.0)
 
 
 def test_truncation_candidates_are_chosen_on_validation(frames, identity, tmp_path) -> None:

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import ArmError
-from .ur_pose import matrix_to_pose_vector, pose_vector_to_matrix
+from ..pose import matrix_to_pose_vector, pose_vector_to_matrix
 
 SESSIONS = {
     "ur_rtde": "tof_mpd_ros.arm.sessions:UrRtdeSession",

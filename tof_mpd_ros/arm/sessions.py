@@ -15,7 +15,8 @@ import time
 import numpy as np
 
 from ..errors import ArmError
-from .ur_pose import matrix_to_pose_vector, pose_vector_to_matrix
+from ..pose import matrix_to_pose_vector, pose_vector_to_matrix
+from .ur5e import HOME_JOINTS, forward_kinematics, solve_ik
 
 
 class UrRtdeSession:
@@ -77,13 +78,10 @@ class SimulatedSession:
 
     def __init__(self, *, speed_scale: float = 0.0, faults: dict | None = None,
                  start_joints: list[float] | None = None) -> None:
-        from ..sim import ur5e
-
-        self._ur5e = ur5e
         self._faults = dict(faults or {})
         if self._faults.get("hang_on_connect"):
             time.sleep(3600)
-        self._joints = np.array(start_joints if start_joints is not None else ur5e.HOME_JOINTS,
+        self._joints = np.array(start_joints if start_joints is not None else HOME_JOINTS,
                                 dtype=np.float64)
         self._speed_scale = speed_scale
         self._moves = 0
@@ -100,14 +98,14 @@ class SimulatedSession:
         if self._protective_stop:
             raise ArmError("the arm is in a protective stop")
         target = pose_vector_to_matrix(pose)
-        joints = self._ur5e.solve_ik(target, self._joints)  # ArmError when unreachable
+        joints = solve_ik(target, self._joints)  # ArmError when unreachable
         distance = float(np.linalg.norm(target[:3, 3] - self.tcp_matrix()[:3, 3]))
         if self._speed_scale > 0 and speed > 0:
             time.sleep(self._speed_scale * (distance / speed + math.sqrt(2 * distance / accel)))
         self._joints = joints
 
     def tcp_matrix(self) -> np.ndarray:
-        return self._ur5e.forward_kinematics(self._joints)
+        return forward_kinematics(self._joints)
 
     def tcp_pose(self) -> list[float]:
         return matrix_to_pose_vector(self.tcp_matrix()).tolist()

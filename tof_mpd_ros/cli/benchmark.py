@@ -51,8 +51,8 @@ def run_benchmark_command(args: argparse.Namespace) -> int:
     from ..evaluation.benchmark import BASELINE_NAMES, BenchmarkConfig, default_grids
     from ..evaluation.benchmark import run_benchmark as run
     from ..evaluation.report import write_benchmark_report
+    from ..recordings import iter_frames
     from .correct import load_model
-    from .frame_files import iter_frames
 
     model = load_model(args.weights)
     grids = default_grids(model, quick=args.quick)

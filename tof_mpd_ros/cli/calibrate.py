@@ -1,4 +1,5 @@
-"""``tof-mpd calibrate``: the per-pixel intrinsic calibration (and, later, hand-eye)."""
+"""``tof-mpd calibrate``: fit the per-pixel intrinsic calibration and the hand–eye calibration
+(both implemented in :mod:`tof_mpd_ros.calibration`; this module only reads files and reports)."""
 
 from __future__ import annotations
 
@@ -8,8 +9,9 @@ from pathlib import Path
 
 import numpy as np
 
+from ..calibration import IntrinsicCalibration, fit_calibration, save_calibration
 from ..errors import CalibrationError, RecordingError
-from ..npz_file import read_npz
+from ..frame import ToFFrame
 from .output import add_output
 
 
@@ -33,35 +35,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     _register_hand_eye(commands)
 
 
-def fit_from_file(path: Path, amplitude_term: str = "linear"):
-    """Fit an IntrinsicCalibration from every frame of a recording or NPZ."""
-    from ..correction.calibration import IntrinsicCalibration
-    from .frame_files import iter_frames
+def fit_from_file(path: Path, amplitude_term: str = "linear"
+                  ) -> tuple[IntrinsicCalibration, list[ToFFrame]]:
+    """Fit an IntrinsicCalibration (:func:`~tof_mpd_ros.calibration.fit_calibration`) from every
+    frame of a recording or NPZ that has a reference; returns it and those frames."""
+    from ..recordings import iter_frames
 
     frames = [f for f in iter_frames(path) if f.reference_mm is not None]
     if not frames:
         raise CalibrationError(f"{path}: no frame with a reference (true range) to fit against")
-    return IntrinsicCalibration.fit(np.stack([f.range_mm for f in frames]),
-                                    np.stack([f.amplitude for f in frames]),
-                                    np.stack([f.reference_mm for f in frames]),
-                                    amplitude_term=amplitude_term), frames
-
-
-def save_calibration(path: Path, calibration) -> None:
-    np.savez(path, **calibration.to_arrays())
-
-
-def load_calibration(path: Path):
-    """Read a calibration .npz written by ``tof-mpd calibrate intrinsic`` (no pickle)."""
-    from ..correction.calibration import IntrinsicCalibration
-
-    if not Path(path).is_file():
-        raise CalibrationError(f"{path}: no such calibration file")
-    arrays = read_npz(Path(path), CalibrationError, "calibration file")
-    try:
-        return IntrinsicCalibration.from_arrays(arrays)
-    except CalibrationError as err:
-        raise CalibrationError(f"{path}: {err}") from err
+    return fit_calibration(frames, amplitude_term=amplitude_term), frames
 
 
 def run_intrinsic(args: argparse.Namespace) -> int:
@@ -111,8 +94,8 @@ def _register_hand_eye(commands: argparse._SubParsersAction) -> None:
 
 
 def run_hand_eye(args: argparse.Namespace) -> int:
-    from ..collection.hand_eye import pose_difference, solve_hand_eye
-    from ..collection.hand_eye_io import read_hand_eye_recording
+    from ..calibration.hand_eye import pose_difference, solve_hand_eye
+    from ..calibration.hand_eye_io import read_hand_eye_recording
 
     if args.simulate:
         _simulate_hand_eye(args.recording, args.views, args.seed)
@@ -137,12 +120,8 @@ def run_hand_eye(args: argparse.Namespace) -> int:
 
 
 def _simulate_hand_eye(path: Path, views: int, seed: int) -> None:
-    from ..collection.hand_eye_sim import (
-        HandEyeSimConfig,
-        perturb_pose,
-        simulate_hand_eye_recording,
-    )
-    from ..sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M
+    from ..arm.tool import DEFAULT_T_FLANGE_CAMERA_M
+    from ..sim.hand_eye import HandEyeSimConfig, perturb_pose, simulate_hand_eye_recording
 
     if path.exists():
         raise RecordingError(f"{path} exists; --simulate refuses to overwrite a recording")

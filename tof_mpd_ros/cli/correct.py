@@ -43,7 +43,7 @@ def run_correct(args: argparse.Namespace) -> int:
 
     from ..correction.pipeline import correct
     from ..errors import InputError
-    from .frame_files import count_frames, iter_frames, write_frames
+    from ..recordings import count_frames, iter_frames, write_frames
 
     model = load_model(args.weights)
     height, width = model.shape

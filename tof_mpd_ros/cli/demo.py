@@ -120,18 +120,7 @@ def _relative(before: float, after: float) -> float | None:
 
 
 def _print_summary(summary: dict, out: Path) -> None:
-    print(f"\nweights: {summary['weights']}; {summary['n_test_frames']} test frames; "
-          f"proposed {summary['ms_per_frame']:.0f} ms per frame")
-    print(f"{'method':<12}{'<5 mm whole':>13}{'<5 mm boundary':>16}{'MAE mm':>9}"
-          f"{'ms/frame':>10}")
-    for name, row in summary["summary_5mm"].items():
-        print(f"{name:<12}{row['whole']:>13.1%}{row['boundary']:>16.1%}{row['mae_mm']:>9.2f}"
-              f"{row['ms_per_frame']:>10.1f}")
-    print(summary["ranking_statement"])
-    for finding in summary["differences_from_paper"]:
-        print(f"differs from the paper ({finding['aspect']}): {finding['why']}")
-    targets = ", ".join(f"{k}: {'met' if v else 'NOT met'}" for k, v in summary["targets"].items())
-    print(f"targets: {targets}")
-    edges = ", ".join(f"{k} {v:.3f}" for k, v in summary["edges_max_f1"].items())
-    print(f"edge max F1: {edges}")
-    print(f"report: {out / 'report' / 'index.html'}")
+    """The summary on the terminal (the package template ``templates/demo_summary.txt``)."""
+    from ..templates import render
+
+    print(render("demo_summary.txt", s=summary, report=out / "report" / "index.html"))

@@ -27,8 +27,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run_evaluate(args: argparse.Namespace) -> int:
     from ..evaluation.components import evaluate_model
     from ..evaluation.report import write_component_report
+    from ..recordings import iter_frames
     from .correct import load_model
-    from .frame_files import iter_frames
 
     model = load_model(args.weights)
     frames = (f for path in args.recordings for f in iter_frames(path))

@@ -16,6 +16,7 @@ import sys
 from collections.abc import Sequence
 
 from ..errors import TofMpdError
+from ..machine import set_openmp_wait_policy
 from .output import CliParser, OldOutputForm
 
 # Subcommand modules, in the order ``--help`` lists them. A module that fails to import (for
@@ -45,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    set_openmp_wait_policy()  # before a command loads numba or torch
     parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
     try:

@@ -17,9 +17,13 @@ def register(subparsers: Any) -> None:
     parser = subparsers.add_parser(
         "recording", help="inspect recordings; convert between recordings and .npz",
         description="rosbag2 MCAP recordings (directory with metadata.yaml + .mcap) and the "
-                    ".npz interchange of SPEC §3.")
+                    ".npz interchange (docs/recordings.md).")
     sub = parser.add_subparsers(dest="recording_command", metavar="SUBCOMMAND", required=True)
+    for add in (_register_info, _register_import_npz, _register_export_npz, _register_import_adi):
+        add(sub)
 
+
+def _register_info(sub: Any) -> None:
     info = sub.add_parser(
         "info", help="topics, types, counts, duration, size, range convention",
         description="Reads a recording directory or .mcap file (summary section; a file left "
@@ -30,6 +34,8 @@ def register(subparsers: Any) -> None:
     info.add_argument("--json", action="store_true", help="print JSON instead of a table")
     info.set_defaults(func=_info)
 
+
+def _register_import_npz(sub: Any) -> None:
     imp = sub.add_parser(
         "import-npz", help="write the frames of an .npz into a new recording",
         description="Reads an interchange .npz (range_mm, amplitude, [reference_mm], fx fy cx "
@@ -49,6 +55,8 @@ def register(subparsers: Any) -> None:
     imp.add_argument("--json", action="store_true", help="print the result as JSON")
     imp.set_defaults(func=_import)
 
+
+def _register_export_npz(sub: Any) -> None:
     exp = sub.add_parser(
         "export-npz", help="write every frame of a recording to an .npz",
         description="Reads a recording directory or .mcap file and writes its frames (radial "
@@ -65,6 +73,8 @@ def register(subparsers: Any) -> None:
     exp.add_argument("--json", action="store_true", help="print the result as JSON")
     exp.set_defaults(func=_export)
 
+
+def _register_import_adi(sub: Any) -> None:
     adi = sub.add_parser(
         "import-adi", help="write one mode of an Analog Devices ToF folder as an .npz",
         description="Reads one camera mode of a folder of Analog Devices ToF frames "
@@ -153,8 +163,8 @@ def _import_adi(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ..errors import RecordingError
+    from ..recordings import write_frames
     from ..recordings.adi import adi_modes, read_adi
-    from .frame_files import write_frames
 
     modes = adi_modes(args.folder)
     if not modes:

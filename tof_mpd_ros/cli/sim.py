@@ -136,10 +136,10 @@ def run_predict(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from ..frame import ToFFrame
-    from ..sim.poses import pose_m_to_mm
+    from ..pose import pose_m_to_mm
+    from ..recordings import count_frames, iter_frames, write_frames
     from ..sim.tof import render_from_reference
     from ..sim.tof.reference_world import ReferenceView, fusion_views
-    from .frame_files import count_frames, iter_frames, write_frames
 
     config = load_config(args.sim_config)
     rng = np.random.default_rng(args.seed)
@@ -173,8 +173,8 @@ def run_predict(args: argparse.Namespace) -> int:
 
 def _references_and_poses(path: Path) -> tuple[list, list]:
     """Every frame's reference (mm) and camera → world pose (mm), None where absent."""
-    from ..sim.poses import pose_m_to_mm
-    from .frame_files import iter_frames
+    from ..pose import pose_m_to_mm
+    from ..recordings import iter_frames
 
     refs, poses = [], []
     for frame in iter_frames(path):

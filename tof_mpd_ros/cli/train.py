@@ -69,7 +69,7 @@ def _clip_arg(text: str) -> tuple[float | None, ...]:
 
 def load_training_frames(paths: list[Path]) -> list:
     from ..errors import InputError
-    from .frame_files import iter_frames
+    from ..recordings import iter_frames
 
     frames = [f for path in paths for f in iter_frames(path)]
     usable = [f for f in frames if f.reference_mm is not None]
@@ -79,8 +79,9 @@ def load_training_frames(paths: list[Path]) -> list:
 
 
 def run_train(args: argparse.Namespace) -> int:
+    from ..calibration import load_calibration
     from ..training.trainer import TrainConfig, train
-    from .calibrate import fit_from_file, load_calibration
+    from .calibrate import fit_from_file
 
     calibration = (load_calibration(args.calibration) if args.calibration is not None
                    else fit_from_file(args.calibration_captures)[0])

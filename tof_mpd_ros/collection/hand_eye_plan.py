@@ -7,6 +7,9 @@ and the other hand-eye methods need. A candidate is kept only if the whole board
 square of its white border lies inside both the ToF crop and the SL image (through the assumed
 hand-eye and SL offsets) and the UR5e reaches it within its joint limits, clear of the table.
 
+It is a capture plan (where the arm goes, what the collector runs), so it lives with the other
+plans; the solver that uses the captures is :mod:`tof_mpd_ros.calibration.hand_eye`.
+
 Units: poses in metres (TCP = flange in the base frame, as ``ur_rtde`` reports it), distances in
 millimetres where the name says so, angles in degrees.
 """
@@ -18,16 +21,22 @@ from dataclasses import dataclass, field
 from itertools import combinations, pairwise
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
+from ..arm.tool import DEFAULT_T_FLANGE_CAMERA_M, default_sl_to_tof_mm
+from ..arm.ur5e import HOME_JOINTS, forward_kinematics
+from ..arm.viewpoints import ViewpointConfig, reach_camera_pose
+from ..calibration.hand_eye_board import CalibrationBoard
 from ..camera import PAPER_CROP, Intrinsics
 from ..errors import ArmError, CalibrationError, InputError
-from ..sim.poses import invert_pose, look_at, pose_m_to_mm, pose_mm_to_m, transform_points
-from ..sim.structured_light import StructuredLightConfig
-from ..sim.ur5e import DEFAULT_T_FLANGE_CAMERA_M, HOME_JOINTS, forward_kinematics
-from ..sim.viewpoints import ViewpointConfig, reach_camera_pose
+from ..pose import (
+    invert_pose,
+    look_at,
+    matrix_to_rotvec,
+    pose_m_to_mm,
+    pose_mm_to_m,
+    transform_points,
+)
 from ..validation import check_array
-from .hand_eye_detect import CalibrationBoard
 from .plan import PlannedView
 
 
@@ -42,7 +51,7 @@ def default_sl_intrinsics() -> Intrinsics:
 
 
 def _default_sl_to_tof_m() -> np.ndarray:
-    return pose_mm_to_m(StructuredLightConfig().sl_to_tof_mm)
+    return pose_mm_to_m(default_sl_to_tof_mm())
 
 
 @dataclass(frozen=True, eq=False)
@@ -178,7 +187,7 @@ def rotation_axis_spread_deg(tcp_to_base_m: list[np.ndarray] | np.ndarray,
     poses = np.asarray(tcp_to_base_m, dtype=np.float64)
     axes = []
     for a, b in pairwise(poses):
-        rotvec = Rotation.from_matrix(a[:3, :3].T @ b[:3, :3]).as_rotvec()
+        rotvec = matrix_to_rotvec(a[:3, :3].T @ b[:3, :3])
         if np.linalg.norm(rotvec) >= math.radians(min_angle_deg):
             axes.append(rotvec / np.linalg.norm(rotvec))
     spread = 0.0

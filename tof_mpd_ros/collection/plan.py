@@ -1,4 +1,5 @@
-"""Collection plans: the TCP poses the arm visits, in order."""
+"""Collection plans: the TCP poses the arm visits, in order (a plan file; the simulator's plan of
+a simulated scene is :func:`tof_mpd_ros.sim.viewpoints.sim_plan`)."""
 
 from __future__ import annotations
 
@@ -8,9 +9,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from ..arm.ur_pose import matrix_to_pose_vector, pose_vector_to_matrix
 from ..errors import InputError
-from ..sim.poses import invert_pose, pose_mm_to_m
+from ..pose import matrix_to_pose_vector, pose_vector_to_matrix
 
 
 @dataclass(frozen=True, eq=False)
@@ -28,21 +28,6 @@ class PlannedView:
     def camera_to_base_m(self, hand_eye_m: np.ndarray) -> np.ndarray:
         """(4, 4) camera pose in the base frame, metres, through the hand-eye transform."""
         return self.tcp_to_base_m @ hand_eye_m
-
-
-def sim_plan(seed: int, split: str, scene: int, views: int,
-             hand_eye_m: np.ndarray) -> list[PlannedView]:
-    """The viewpoint plan of a simulated scene (the same scene the ``sim_cell`` node renders)."""
-    from ..sim.dataset import scene_rng
-    from ..sim.scene import make_scene
-    from ..sim.viewpoints import ViewpointConfig, plan_viewpoints
-
-    rng = scene_rng(seed, split, scene)
-    scene_obj = make_scene(split, rng)
-    plan = plan_viewpoints(scene_obj, rng, ViewpointConfig(t_flange_camera_m=hand_eye_m))
-    to_flange = invert_pose(hand_eye_m)
-    return [PlannedView(i, pose_mm_to_m(v.camera_to_base_mm) @ to_flange)
-            for i, v in enumerate(plan.viewpoints[:views])]
 
 
 def load_plan(path: str | Path) -> list[PlannedView]:

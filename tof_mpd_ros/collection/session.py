@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RecordingError
+from ..pose import rotation_angle
 from .plan import PlannedView
 
 log = logging.getLogger(__name__)
@@ -57,8 +58,7 @@ def matches(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether two (4, 4) poses (metres) are the same viewpoint within the tolerances."""
     if np.linalg.norm(a[:3, 3] - b[:3, 3]) > POSE_TOLERANCE_M:
         return False
-    cos = (np.trace(a[:3, :3].T @ b[:3, :3]) - 1.0) / 2.0
-    return float(np.arccos(np.clip(cos, -1.0, 1.0))) <= ANGLE_TOLERANCE_RAD
+    return rotation_angle(a, b) <= ANGLE_TOLERANCE_RAD
 
 
 def completed_views(session: str | Path, plan: list[PlannedView],
@@ -74,15 +74,15 @@ def completed_views(session: str | Path, plan: list[PlannedView],
 
 
 # ------------------------------------------------------------------ calibration sessions
-# A hand-eye calibration session holds calibration recordings (.hand_eye_io): their frames
-# carry the TCP pose but no camera pose (the hand-eye transform is what they are for), so its
+# A hand-eye calibration session holds calibration recordings (calibration.hand_eye_io): their
+# frames carry the TCP pose but no camera pose (the hand-eye transform is what they are for), so its
 # views are matched on the TCP pose.
 
 
 def is_calibration_part(part: str | Path) -> bool | None:
     """Whether a part is a hand-eye calibration recording; None if it cannot be read."""
+    from ..calibration.hand_eye_io import KEY_BOARD
     from ..recordings import RecordingReader
-    from .hand_eye_io import KEY_BOARD
 
     try:
         with RecordingReader(part) as reader:
@@ -100,7 +100,7 @@ def completed_calibration_views(session: str | Path,
                                 plan: list[PlannedView]) -> dict[int, int]:
     """How many complete calibration views (TCP pose, ToF amplitude and SL image) the session
     holds for each planned view index, matched on the TCP pose."""
-    from .hand_eye_io import read_hand_eye_recording
+    from ..calibration.hand_eye_io import read_hand_eye_recording
 
     counts = {view.index: 0 for view in plan}
     for part in parts(session):

@@ -1,12 +1,12 @@
-"""Multipath-distortion correction (paper §III): calibration, patch encoding, networks F and G,
-edge map, geodesic filtering, the weights file and the full pipeline.
+"""Multipath-distortion correction (paper §III): patch encoding, networks F and G, edge map,
+geodesic filtering, the weights file and the full pipeline (which first applies the per-pixel
+calibration of :mod:`tof_mpd_ros.calibration`).
 
 Pure numpy/torch; never imports rclpy. The ROS node and the CLI call :func:`correct`.
 """
 
 from __future__ import annotations
 
-from .calibration import IntrinsicCalibration
 from .encoding import EncodingConfig, encode_frame
 from .networks import BoundaryNets, RangeRecoveryNet, boundary_scores, recover_range
 from .pipeline import CorrectionModel, CorrectionResult, GeodesicParams, correct
@@ -14,6 +14,6 @@ from .weights import load_weights, save_weights
 
 __all__ = [
     "BoundaryNets", "CorrectionModel", "CorrectionResult", "EncodingConfig", "GeodesicParams",
-    "IntrinsicCalibration", "RangeRecoveryNet", "boundary_scores", "correct", "encode_frame",
-    "load_weights", "recover_range", "save_weights",
+    "RangeRecoveryNet", "boundary_scores", "correct", "encode_frame", "load_weights",
+    "recover_range", "save_weights",
 ]

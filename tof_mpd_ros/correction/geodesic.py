@@ -52,22 +52,19 @@ from __future__ import annotations
 
 import functools
 import math
-import os
 import threading
-from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
 
 import numba
 import numpy as np
 
 from ..errors import InputError
+from ..thread_pools import shared_pool
 from ..validation import check_array, check_same_shape
 
 DEFAULT_MAX_STEPS = 32.0
 # Concurrent calls share the worker pool; one call at a time keeps each call's threads busy.
 _KERNEL_LOCK = threading.Lock()
-_POOLS: dict[int, ThreadPoolExecutor] = {}
-if hasattr(os, "register_at_fork"):   # a forked child must not reuse the parent's dead threads
-    os.register_at_fork(after_in_child=_POOLS.clear)
 # (dy, dx, is_diagonal) of the 8 moves.
 _MOVES = np.array([[-1, -1, 1], [-1, 0, 0], [-1, 1, 1], [0, -1, 0], [0, 1, 0],
                    [1, -1, 1], [1, 0, 0], [1, 1, 1]], dtype=np.int64)
@@ -215,9 +212,89 @@ def _border_templates(k: int, h: int, w: int, max_steps: float
         r += 1
 
 
+class Graph(NamedTuple):
+    """The grid graph of one frame as the compiled kernels read it (see the module doc).
+
+    Flat pixel index ``p = y * w + x`` throughout.
+
+    Attributes:
+        h, w: image rows and columns.
+        moves_ok: (H*W,) uint8 bit mask of the moves allowed from each pixel (bit i =
+            ``_MOVES[i]``).
+        move_off: (8,) int64 flat offset of each move; move_diag: (8,) bool, diagonal moves.
+        valid: (H*W,) bool pixels that may be neighbours.
+        k: neighbours wanted per pixel.
+        next_axis, next_diag: (n_ranks,) int32 distance rank after one more axis / diagonal
+            move (-1 beyond the search limit), from :func:`_rank_table`.
+        pool_size: entries of a worker's bucket-queue pool (8 per settled pixel).
+        tmpl_ok: (H*W,) bool pixels whose open template applies (clear footprint).
+        tmpl_off: (k,) int64 flat offsets of the open template; tmpl_rank: (k,) int32 ranks.
+        obstacle: (H*W,) bool edge or missing pixels.
+        border_r: border-class window radius (0 = no border templates).
+        cls_ok: (n_classes,) bool usable border classes; cls_off: (n_classes, k) int64
+            offsets; cls_rank: (n_classes, k) int32 ranks (:func:`_border_templates`).
+    """
+
+    h: int
+    w: int
+    moves_ok: np.ndarray
+    move_off: np.ndarray
+    move_diag: np.ndarray
+    valid: np.ndarray
+    k: int
+    next_axis: np.ndarray
+    next_diag: np.ndarray
+    pool_size: int
+    tmpl_ok: np.ndarray
+    tmpl_off: np.ndarray
+    tmpl_rank: np.ndarray
+    obstacle: np.ndarray
+    border_r: int
+    cls_ok: np.ndarray
+    cls_off: np.ndarray
+    cls_rank: np.ndarray
+
+
+class SearchWork(NamedTuple):
+    """One worker's arrays for :func:`_knn_one` (allocated once per chunk, never per pixel).
+
+    Attributes:
+        state: (H*W,) int32 stamps, ``2 sid`` reached / ``2 sid + 1`` settled (must start
+            below every source's stamp: zeros).
+        rank: (H*W,) int32 best distance rank found (read only where a stamp says written).
+        bhead: (n_ranks,) int32 head of each bucket's list in the pool.
+        bstamp: (n_ranks,) int32 source stamp of each bucket (zeros at start).
+        pool_node, pool_next: (pool_size,) int32 bucket lists (node, next entry).
+        cand: (pool_size,) int32 a bucket's pixels being settled, sorted by index.
+    """
+
+    state: np.ndarray
+    rank: np.ndarray
+    bhead: np.ndarray
+    bstamp: np.ndarray
+    pool_node: np.ndarray
+    pool_next: np.ndarray
+    cand: np.ndarray
+
+
 @numba.njit(cache=True, nogil=True)
-def _border_class(p, h, w, r, cls_ok, cls_off, obstacle):  # pragma: no cover
+def _search_work(g: Graph) -> SearchWork:  # pragma: no cover
+    """Fresh :class:`SearchWork` for ``g``."""
+    n = g.h * g.w
+    n_ranks = g.next_axis.shape[0]
+    return SearchWork(np.zeros(n, np.int32), np.empty(n, np.int32),
+                      np.empty(n_ranks, np.int32), np.zeros(n_ranks, np.int32),
+                      np.empty(g.pool_size, np.int32), np.empty(g.pool_size, np.int32),
+                      np.empty(g.pool_size, np.int32))
+
+
+# Inlined (numba IR): called per pixel, and a call passes the whole Graph flattened into
+# scalar arguments (~5 % of the filter).
+@numba.njit(cache=True, nogil=True, inline="always")
+def _border_class(p, g):  # pragma: no cover
     """Border class of pixel ``p`` when its border template applies (clear footprint), else -1."""
+    h, w, r = g.h, g.w, g.border_r
+    cls_ok, cls_off, obstacle = g.cls_ok, g.cls_off, g.obstacle
     if cls_ok.shape[0] == 0:
         return -1
     y = p // w
@@ -252,15 +329,20 @@ def _allowed_moves(edge: np.ndarray) -> np.ndarray:
     return mask
 
 
+# One function: the bucket loop is the hot loop, kept whole so its locals stay in registers.
 @numba.njit(cache=True, nogil=True)
-def _knn_one(src, moves_ok, move_off, move_diag, valid, k, next_axis, next_diag, state, rank,
-             bhead, bstamp, pool_node, pool_next, cand, out_idx, out_rank):
-    """Bucket-queue Dijkstra from ``src``; writes up to k (index, rank); returns the count.
+def _knn_one(src, g, work, out_idx, out_rank):  # pragma: no cover
+    """Bucket-queue Dijkstra from ``src`` on graph ``g`` (:class:`Graph`) with ``work``
+    (:class:`SearchWork`); writes up to k (index, rank); returns the count.
 
     ``state[v]`` is ``2 sid`` once v is reached from this source and ``2 sid + 1`` once settled
     (``sid = src + 1``); sources of one worker increase, so older stamps are always smaller and
     nothing is reset between sources.
     """
+    moves_ok, move_off, move_diag, valid = g.moves_ok, g.move_off, g.move_diag, g.valid
+    k, next_axis, next_diag = g.k, g.next_axis, g.next_diag
+    state, rank, bhead, bstamp = work.state, work.rank, work.bhead, work.bstamp
+    pool_node, pool_next, cand = work.pool_node, work.pool_next, work.cand
     sid = src + 1
     reached = 2 * sid
     settled = reached + 1
@@ -324,56 +406,38 @@ def _knn_one(src, moves_ok, move_off, move_diag, valid, k, next_axis, next_diag,
 
 
 @numba.njit(cache=True, nogil=True)
-def _knn_all(first, stride, n_chunks, g, out_idx, out_rank):
+def _knn_all(first, stride, n_chunks, g, out_idx, out_rank):  # pragma: no cover
     """K nearest valid pixels of the pixels of chunks ``first, first + stride, ...`` (chunk c
-    = rows c, c + n_chunks, ...)."""
-    (h, w, moves_ok, move_off, move_diag, valid, k, next_axis, next_diag, pool_size, tmpl_ok,
-     tmpl_off, tmpl_rank, obstacle, b_r, cls_ok, cls_off, cls_rank) = g
-    n = h * w
-    n_ranks = next_axis.shape[0]
+    = rows c, c + n_chunks, ...) of graph ``g`` (:class:`Graph`)."""
+    h, w, k = g.h, g.w, g.k
     for c in range(first, n_chunks, stride):
-        # Work arrays once per chunk, never per pixel.
-        state = np.zeros(n, np.int32)  # stamps must start below every source's stamp
-        bstamp = np.zeros(n_ranks, np.int32)
-        rank = np.empty(n, np.int32)  # the rest is only read where a stamp says it was written
-        bhead = np.empty(n_ranks, np.int32)
-        pool_node = np.empty(pool_size, np.int32)
-        pool_next = np.empty(pool_size, np.int32)
-        cand = np.empty(pool_size, np.int32)
+        work = _search_work(g)   # once per chunk, never per pixel
         for y in range(c, h, n_chunks):
             for p in range(y * w, (y + 1) * w):
-                if tmpl_ok[p]:
+                if g.tmpl_ok[p]:
                     for i in range(k):
-                        out_idx[p, i] = p + tmpl_off[i]
-                        out_rank[p, i] = tmpl_rank[i]
+                        out_idx[p, i] = p + g.tmpl_off[i]
+                        out_rank[p, i] = g.tmpl_rank[i]
                     continue
-                cls = _border_class(p, h, w, b_r, cls_ok, cls_off, obstacle)
+                cls = _border_class(p, g)
                 if cls >= 0:
                     for i in range(k):
-                        out_idx[p, i] = p + cls_off[cls, i]
-                        out_rank[p, i] = cls_rank[cls, i]
+                        out_idx[p, i] = p + g.cls_off[cls, i]
+                        out_rank[p, i] = g.cls_rank[cls, i]
                 else:
-                    _knn_one(p, moves_ok, move_off, move_diag, valid, k, next_axis, next_diag,
-                             state, rank, bhead, bstamp, pool_node, pool_next, cand, out_idx[p],
-                             out_rank[p])
+                    _knn_one(p, g, work, out_idx[p], out_rank[p])
 
 
 @numba.njit(cache=True, nogil=True)
-def _filter_all(first, stride, n_chunks, g, values, weight_of_rank, skip, out):
+def _filter_all(first, stride, n_chunks, g, values, weight_of_rank, skip,
+                out):  # pragma: no cover
     """Fused search + weighted mean: out[p] = Σ w R / Σ w over p's K nearest, NaN if none
     (chunks ``first, first + stride, ...`` as :func:`_knn_all`)."""
-    (h, w, moves_ok, move_off, move_diag, valid, k, next_axis, next_diag, pool_size, tmpl_ok,
-     tmpl_off, tmpl_rank, obstacle, b_r, cls_ok, cls_off, cls_rank) = g
-    n = h * w
-    n_ranks = next_axis.shape[0]
+    h, w, k = g.h, g.w, g.k
+    tmpl_ok, tmpl_off, tmpl_rank = g.tmpl_ok, g.tmpl_off, g.tmpl_rank
+    cls_off, cls_rank = g.cls_off, g.cls_rank
     for c in range(first, n_chunks, stride):
-        state = np.zeros(n, np.int32)  # stamps must start below every source's stamp
-        bstamp = np.zeros(n_ranks, np.int32)
-        rank = np.empty(n, np.int32)  # the rest is only read where a stamp says it was written
-        bhead = np.empty(n_ranks, np.int32)
-        pool_node = np.empty(pool_size, np.int32)
-        pool_next = np.empty(pool_size, np.int32)
-        cand = np.empty(pool_size, np.int32)
+        work = _search_work(g)   # once per chunk, never per pixel
         idx = np.zeros(k, np.int32)
         rnk = np.zeros(k, np.int32)
         for y in range(c, h, n_chunks):
@@ -390,16 +454,14 @@ def _filter_all(first, stride, n_chunks, g, values, weight_of_rank, skip, out):
                         den += wgt
                     out[p] = num / den
                     continue
-                cls = _border_class(p, h, w, b_r, cls_ok, cls_off, obstacle)
+                cls = _border_class(p, g)
                 if cls >= 0:
                     for i in range(k):
                         wgt = weight_of_rank[cls_rank[cls, i]]
                         num += wgt * values[p + cls_off[cls, i]]
                         den += wgt
                 else:
-                    m = _knn_one(p, moves_ok, move_off, move_diag, valid, k, next_axis,
-                                 next_diag, state, rank, bhead, bstamp, pool_node, pool_next,
-                                 cand, idx, rnk)
+                    m = _knn_one(p, g, work, idx, rnk)
                     for i in range(m):
                         wgt = weight_of_rank[rnk[i]]
                         num += wgt * values[idx[i]]
@@ -408,8 +470,8 @@ def _filter_all(first, stride, n_chunks, g, values, weight_of_rank, skip, out):
 
 
 def _prepare(edges: np.ndarray, valid: np.ndarray, k: int, step: float,
-             max_distance: float | None) -> tuple[tuple, np.ndarray]:
-    """Validate and build the graph tuple of the kernels; also return each rank's length."""
+             max_distance: float | None) -> tuple[Graph, np.ndarray]:
+    """Validate and build the kernels' :class:`Graph`; also return each rank's length (steps)."""
     e = check_array("edges", edges, ndim=2, dtype_kind="bui")
     v = check_array("valid", valid, ndim=2, dtype_kind="bui")
     check_same_shape(edges=e, valid=v)
@@ -433,9 +495,12 @@ def _prepare(edges: np.ndarray, valid: np.ndarray, k: int, step: float,
     move_diag = _MOVES[:, 2].astype(np.bool_)
     side = 2 * math.floor(max_steps) + 1
     pool_size = 8 * min(h * w, side * side) + 8  # each settled pixel pushes at most 8 entries
-    graph = (h, w, _allowed_moves(edge).ravel(), move_off, move_diag, np.ascontiguousarray(
-        ok.ravel()), int(k), next_axis, next_diag, pool_size, tmpl_ok, off.astype(np.int64),
-        trank, np.ascontiguousarray(obstacle.ravel()), int(b_r), cls_ok, cls_off, cls_rank)
+    graph = Graph(h=h, w=w, moves_ok=_allowed_moves(edge).ravel(), move_off=move_off,
+                  move_diag=move_diag, valid=np.ascontiguousarray(ok.ravel()), k=int(k),
+                  next_axis=next_axis, next_diag=next_diag, pool_size=pool_size,
+                  tmpl_ok=tmpl_ok, tmpl_off=off.astype(np.int64), tmpl_rank=trank,
+                  obstacle=np.ascontiguousarray(obstacle.ravel()), border_r=int(b_r),
+                  cls_ok=cls_ok, cls_off=cls_off, cls_rank=cls_rank)
     return graph, length
 
 
@@ -456,10 +521,7 @@ def _run_chunks(kernel: object, n_chunks: int, *args: object) -> None:
         if workers == 1:
             kernel(0, 1, n_chunks, *args)
             return
-        pool = _POOLS.get(workers)
-        if pool is None:
-            pool = _POOLS[workers] = ThreadPoolExecutor(max_workers=workers - 1,
-                                                        thread_name_prefix="tof-mpd-geodesic")
+        pool = shared_pool("geodesic", workers)
         futures = [pool.submit(kernel, t, workers, n_chunks, *args) for t in range(1, workers)]
         try:
             kernel(0, workers, n_chunks, *args)
@@ -485,10 +547,10 @@ def geodesic_neighbours(edges: np.ndarray, valid: np.ndarray, *, k: int = 81, st
         distances: (H*W, k) float32 geodesic distances in the unit of ``step``; inf padding.
     """
     graph, length = _prepare(edges, valid, k, step, max_distance)
-    n = graph[0] * graph[1]
+    n = graph.h * graph.w
     idx = np.full((n, k), -1, np.int32)
     rank = np.full((n, k), -1, np.int32)
-    _run_chunks(_knn_all, _n_chunks(graph[0]), graph, idx, rank)
+    _run_chunks(_knn_all, _n_chunks(graph.h), graph, idx, rank)
     lengths = np.append(length * step, np.inf).astype(np.float32)  # rank -1 -> inf
     return idx, lengths[rank]
 

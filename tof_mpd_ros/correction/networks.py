@@ -10,17 +10,19 @@
   the four heads run as one GEMM (first layers concatenated, 240 x 160) and two batched GEMMs.
 
 Device and dtype follow the module (move it with ``.to``); inputs are cast to the module's dtype.
+The modules are what training optimises (and what the evaluation's per-component scores call).
 
-Inference has two fused forms: :class:`FusedPatchNets` (torch, any device, column encoding) and
-:class:`FastPatchNets` (CPU fast path of ``pipeline.correct``: one oneDNN GEMM for the first layers
-of F and the four G heads over a band of pixel-major encodings, then one compiled kernel for
-everything after it, cache-resident, no allocation).
+Inference (``pipeline.correct``) has one path, :class:`PatchNets`, over one re-layout of the
+weights, :class:`FusedWeights`: one GEMM for the first layers of F and the four G heads over a
+band of pixel-major encodings, then everything after it, on the CPU in one compiled kernel
+(:func:`_heads_kernel`, cache-resident, no allocation), on other torch devices as torch ops.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -182,11 +184,9 @@ def boundary_scores(features: torch.Tensor, nets: BoundaryNets) -> torch.Tensor:
 
 
 def _check_fusable(range_net: RangeRecoveryNet, boundary_nets: BoundaryNets, patch_size: int,
-                   n_bins: int, precision: str) -> int:
+                   n_bins: int) -> int:
     """Neighbours per patch (``patch_size**2 - 1``); raise InputError unless F and G fit one
-    ``patch_size``/``n_bins`` encoding and ``precision`` is known (shared by the fused paths)."""
-    if precision not in ("float32", "bfloat16"):
-        raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
+    ``patch_size``/``n_bins`` encoding."""
     m = patch_size * patch_size - 1
     if range_net.n_features != 2 * m + 2 * n_bins or boundary_nets.n_features != 2 * m:
         raise InputError(f"networks ({range_net.n_features}, {boundary_nets.n_features} "
@@ -195,98 +195,74 @@ def _check_fusable(range_net: RangeRecoveryNet, boundary_nets: BoundaryNets, pat
     return m
 
 
-class FusedPatchNets:
-    """Inference-only fusion of F and the four G heads over the column encoding.
+class FusedWeights(NamedTuple):
+    """F and the four G heads laid out for inference (float32, C-contiguous numpy).
 
-    The first layers of F (its x_R / x_A part) and of the four G heads read the same patch, so
-    they are stacked into one ``(40 + 4 * 40, P*P)`` weight per input plane: two GEMMs against
-    the (P*P, N) column encodings give all 200 first-layer pre-activations. F's one-hot terms
-    ``W b_R + W b_A`` become two column lookups; the centre rows of the encoding get zero
-    weights. Everything stays channels-first ((features, N), as the encoding arrives), so each
-    head's hidden units are a contiguous (40, N) block and the heads run as batched GEMMs with
-    no transposes or copies. Numerically the same function as the modules (float32 up to
-    summation order).
+    ``nf`` = F's first hidden width (40), ``h1``, ``h2`` = a head's hidden widths (40, 20),
+    ``rows = nf + heads * h1`` (200), ``M`` = neighbours per patch (120).
 
-    ``precision="bfloat16"`` runs the first layers as one bfloat16 GEMM (inputs and weights
-    rounded to 8 significant bits, accumulated in float32, output rounded to bfloat16): several
-    times faster on CPUs with AVX512-BF16/AMX, at an F error of a few hundredths of a millimetre.
-
-    Args:
-        range_net: the trained F.
-        boundary_nets: the trained G heads.
-        patch_size: P of the encoding.
-        n_bins: one-hot width of the encoding.
-        precision: ``"float32"`` or ``"bfloat16"``.
+    Attributes:
+        first: (rows, 2 M) first-layer weights of the ``[x_R x_A]`` inputs: F's, then head k's
+            at rows ``nf + k h1 ..``: one GEMM gives all first-layer pre-activations.
+        bias: (rows,) first-layer biases, same rows.
+        table_range, table_amp: (nf, n_bins) F's first-layer weights of the one-hot b_R / b_A
+            inputs: a column lookup per pixel instead of a product with a one-hot vector.
+        f_w: (L, widest out, widest in) F's remaining L layers ``(out, in)``, zero-padded.
+        f_b: (L, widest out) their biases.
+        f_dims: (L + 1,) int64 widths ``[nf, .., 1]``.
+        g_w2: (heads, h2, h1) the heads' second layers ``(out, in)``; g_b2: (heads, h2).
+        g_w3: (heads, 2, h2) the heads' output layers ``(out, in)``; g_b3: (heads, 2).
+        t_clip: float32 T, F's output scale (mm per unit of the output).
     """
 
-    def __init__(self, range_net: RangeRecoveryNet, boundary_nets: BoundaryNets,
-                 patch_size: int, n_bins: int, precision: str = "float32") -> None:
-        m = _check_fusable(range_net, boundary_nets, patch_size, n_bins, precision)
-        dtype = torch.bfloat16 if precision == "bfloat16" else torch.float32
-        w_f = range_net.layers[0].weight.detach().float()
-        w_g = boundary_nets.first.weight.detach().float()
-        c = m // 2
+    first: np.ndarray
+    bias: np.ndarray
+    table_range: np.ndarray
+    table_amp: np.ndarray
+    f_w: np.ndarray
+    f_b: np.ndarray
+    f_dims: np.ndarray
+    g_w2: np.ndarray
+    g_b2: np.ndarray
+    g_w3: np.ndarray
+    g_b3: np.ndarray
+    t_clip: np.float32
 
-        def widen(w: torch.Tensor) -> torch.Tensor:   # (out, M) -> (out, P*P), zero centre
-            return torch.cat([w[:, :c], w.new_zeros(w.shape[0], 1), w[:, c:]], 1)
 
-        self.w_range = torch.cat([widen(w_f[:, :m]), widen(w_g[:, :m])]).to(dtype).contiguous()
-        self.w_amp = torch.cat([widen(w_f[:, m:2 * m]), widen(w_g[:, m:2 * m])]
-                               ).to(dtype).contiguous()
-        self.w_both = torch.cat([self.w_range, self.w_amp], 1).contiguous()
-        self.bias = torch.cat([range_net.layers[0].bias, boundary_nets.first.bias]
-                              ).detach()[:, None]
-        self.table_range = w_f[:, 2 * m:2 * m + n_bins].contiguous()   # (40, n_bins)
-        self.table_amp = w_f[:, 2 * m + n_bins:].contiguous()
-        g = boundary_nets
-        self.g_w2 = g.w2.detach().transpose(1, 2).contiguous()        # (heads, h2, h1)
-        self.g_b2 = g.b2.detach().transpose(1, 2).contiguous()        # (heads, h2, 1)
-        self.g_w3 = g.w3.detach().transpose(1, 2).contiguous()        # (heads, 2, h2)
-        self.g_b3 = g.b3.detach().transpose(1, 2).contiguous()        # (heads, 2, 1)
-        self.f_layers = [(layer.weight.detach(), layer.bias.detach()[:, None])
-                         for layer in range_net.layers[1:]]
-        self.n_f, self.n_heads, self.h1 = w_f.shape[0], g.n_heads, g.hidden[0]
-        self.target_clip_mm = range_net.target_clip_mm
-        self.dtype = dtype
+def _np32(t: torch.Tensor) -> np.ndarray:
+    return np.ascontiguousarray(t.detach().cpu().float().numpy())
 
-    def __call__(self, x_range: torch.Tensor, x_amp: torch.Tensor, bin_range: torch.Tensor,
-                 bin_amp: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """F correction and G edge probabilities of N pixels.
 
-        Args:
-            x_range, x_amp: (P*P, N) float32 column encodings (centre row included).
-            bin_range, bin_amp: (N,) int64 one-hot bin indices.
-
-        Returns:
-            ``(correction_mm, edge_prob)``: (N,) float32 F(p) in mm and (4, N) float32 edge
-            probability of each head.
-        """
-        with torch.no_grad():
-            if self.dtype == torch.float32:
-                h = torch.addmm(self.bias, self.w_range, x_range).addmm_(self.w_amp, x_amp)
-            else:   # one bfloat16 GEMM over both planes (float32 accumulation inside)
-                p2 = x_range.shape[0]
-                x = x_range.new_empty((2 * p2, x_range.shape[1]), dtype=self.dtype)
-                x[:p2].copy_(x_range)
-                x[p2:].copy_(x_amp)
-                h = torch.mm(self.w_both, x).float().add_(self.bias)
-            h[:self.n_f].add_(self.table_range.index_select(1, bin_range)).add_(
-                self.table_amp.index_select(1, bin_amp))
-            h.relu_()
-            x = h[:self.n_f]                                              # (40, N)
-            for weight, bias in self.f_layers[:-1]:
-                x = torch.addmm(bias, weight, x).relu_()
-            weight, bias = self.f_layers[-1]
-            correction = torch.addmm(bias, weight, x)[0] * self.target_clip_mm
-            hg = h[self.n_f:].view(self.n_heads, self.h1, -1)             # (heads, 40, N)
-            hg = torch.baddbmm(self.g_b2, self.g_w2, hg).relu_()           # (heads, 20, N)
-            logits = torch.baddbmm(self.g_b3, self.g_w3, hg)              # (heads, 2, N)
-            probs = torch.sigmoid(logits[:, 1] - logits[:, 0])            # (heads, N)
-        return correction, probs
+def fuse_weights(range_net: RangeRecoveryNet, boundary_nets: BoundaryNets, patch_size: int,
+                 n_bins: int) -> FusedWeights:
+    """The package's one re-layout of the trained modules for inference (see
+    :class:`FusedWeights`); raise InputError unless they fit a ``patch_size``/``n_bins``
+    encoding."""
+    m = _check_fusable(range_net, boundary_nets, patch_size, n_bins)
+    g = boundary_nets
+    w_f = _np32(range_net.layers[0].weight)
+    rest = range_net.layers[1:]
+    f_dims = np.array([w_f.shape[0]] + [layer.out_features for layer in rest], np.int64)
+    f_w = np.zeros((len(rest), int(max(f_dims[1:].max(), 1)), int(f_dims[:-1].max())),
+                   np.float32)
+    f_b = np.zeros(f_w.shape[:2], np.float32)
+    for i, layer in enumerate(rest):
+        f_w[i, :layer.out_features, :layer.in_features] = _np32(layer.weight)
+        f_b[i, :layer.out_features] = _np32(layer.bias)
+    return FusedWeights(
+        first=np.ascontiguousarray(np.concatenate([w_f[:, :2 * m], _np32(g.first.weight)])),
+        bias=_np32(torch.cat([range_net.layers[0].bias.detach().cpu(),
+                              g.first.bias.detach().cpu()])),
+        table_range=np.ascontiguousarray(w_f[:, 2 * m:2 * m + n_bins]),
+        table_amp=np.ascontiguousarray(w_f[:, 2 * m + n_bins:]),
+        f_w=f_w, f_b=f_b, f_dims=f_dims,
+        g_w2=_np32(g.w2.transpose(1, 2)), g_b2=_np32(g.b2[:, 0]),
+        g_w3=_np32(g.w3.transpose(1, 2)), g_b3=_np32(g.b3[:, 0]),
+        t_clip=np.float32(range_net.target_clip_mm))
 
 
 # ---------------------------------------------------------------------------------------------
-# CPU fast path: oneDNN first-layer GEMM + one compiled kernel for the rest.
+# The first-layer GEMM
 
 
 def _onednn_linear(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
@@ -300,7 +276,7 @@ def _onednn_linear(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
 
 
 def _mkl_linear(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-    """``weight @ x.T`` with torch.mm (fallback when oneDNN is unavailable)."""
+    """``weight @ x.T`` with torch.mm (other devices; fallback when oneDNN is unavailable)."""
     return torch.mm(weight, x.t())
 
 
@@ -322,13 +298,62 @@ def _pick_linear(dtype: torch.dtype) -> object:
     return _mkl_linear
 
 
+# ---------------------------------------------------------------------------------------------
+# The compiled kernel of everything after the first layer (CPU)
+
+
+class FrameBins(NamedTuple):
+    """Per-pixel inputs of a frame besides the encoding (flat, ``H * W``).
+
+    Attributes:
+        bin_range, bin_amplitude: (H*W,) int32 one-hot bin indices.
+        valid: (H*W,) bool validity.
+    """
+
+    bin_range: np.ndarray
+    bin_amplitude: np.ndarray
+    valid: np.ndarray
+
+
+class HeadOutputs(NamedTuple):
+    """Per-pixel outputs of the networks (flat, ``H * W``).
+
+    Attributes:
+        correction: (H*W,) float32 F(p) in mm.
+        best: (H*W,) float32 maximum edge probability over the heads (0 at invalid pixels).
+        group: (H*W,) int8 its head, first on ties (0 at invalid pixels).
+    """
+
+    correction: np.ndarray
+    best: np.ndarray
+    group: np.ndarray
+
+
+class Scratch(NamedTuple):
+    """Work arrays of one worker of :func:`_heads_kernel` (``chunk`` pixels wide, float32).
+
+    Attributes:
+        hidden: (rows, chunk) first-layer activations.
+        f_even, f_odd: (widest F layer, chunk) ping-pong buffers of F's layers.
+        g_hidden: (h2, chunk) a head's second-layer activations.
+        g_logits: (2, chunk) a head's logits.
+    """
+
+    hidden: np.ndarray
+    f_even: np.ndarray
+    f_odd: np.ndarray
+    g_hidden: np.ndarray
+    g_logits: np.ndarray
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _dense(w: np.ndarray, b: np.ndarray, n_out: int, n_in: int, src: np.ndarray,
            dst: np.ndarray, m: int, relu: bool) -> None:  # pragma: no cover
     """``dst[j, :m] = act(b[j] + sum_i w[j, i] src[i, :m])``, vectorised over pixels.
 
     Four output rows at a time share each load of ``src`` (1.5x faster than one row at a
-    time; every output is still the same sum in the same order).
+    time; every output is still the same sum in the same order). Long: the 4-row body and its
+    remainder loop are one unrolled piece.
     """
     zero = np.float32(0.0)
     j = 0
@@ -373,89 +398,131 @@ def _dense(w: np.ndarray, b: np.ndarray, n_out: int, n_in: int, src: np.ndarray,
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _heads_kernel(h, n, start, bin_range, bin_amplitude, valid, bias, tab_r, tab_a, f_w, f_b,
-                  f_dims, t_clip, g_w2, g_b2, g_w3, g_b3, do_f, do_g, corr, best, group, hc,
-                  fa, fb, tg, lg):  # pragma: no cover
+def _first_activations(first: np.ndarray, c0: int, m: int, q0: int, frame: FrameBins,
+                       wts: FusedWeights, hidden: np.ndarray) -> None:  # pragma: no cover
+    """``hidden[j, :m] = relu(first[j, c0:c0 + m] + bias[j] (+ F's one-hot lookups, j < nf))``
+    for pixels ``q0 .. q0 + m`` of the frame."""
+    nf = wts.f_dims[0]
+    zero = np.float32(0.0)
+    for j in range(first.shape[0]):
+        src = first[j, c0:c0 + m]
+        dst = hidden[j]
+        bj = wts.bias[j]
+        if j < nf:
+            tr = wts.table_range[j]
+            ta = wts.table_amp[j]
+            for px in range(m):
+                v = (src[px] + bj + tr[frame.bin_range[q0 + px]]
+                     + ta[frame.bin_amplitude[q0 + px]])
+                dst[px] = max(v, zero)
+        else:
+            for px in range(m):
+                dst[px] = max(src[px] + bj, zero)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _range_chunk(wts: FusedWeights, m: int, q0: int, scratch: Scratch,
+                 correction: np.ndarray) -> None:  # pragma: no cover
+    """F's layers after the first on ``scratch.hidden[:nf, :m]``; F(p) in mm into
+    ``correction[q0 .. q0 + m]``."""
+    dims = wts.f_dims
+    n_layers = dims.shape[0] - 1
+    src = scratch.hidden[:dims[0]]
+    for layer in range(n_layers):
+        dst = scratch.f_even if layer % 2 == 0 else scratch.f_odd
+        _dense(wts.f_w[layer], wts.f_b[layer], dims[layer + 1], dims[layer], src, dst, m,
+               layer < n_layers - 1)
+        src = dst
+    out = src[0]
+    for px in range(m):
+        correction[q0 + px] = out[px] * wts.t_clip
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _boundary_chunk(wts: FusedWeights, m: int, q0: int, valid: np.ndarray, scratch: Scratch,
+                    best: np.ndarray, group: np.ndarray) -> None:  # pragma: no cover
+    """The G heads after their first layer on ``scratch.hidden[nf:, :m]``; the maximum edge
+    probability and its head (first on ties; both 0 at invalid pixels) into ``best`` /
+    ``group`` at ``q0 .. q0 + m``."""
+    n_heads, h2, h1 = wts.g_w2.shape
+    nf = wts.f_dims[0]
+    for px in range(m):
+        best[q0 + px] = -1.0
+        group[q0 + px] = 0
+    for k in range(n_heads):
+        off = nf + k * h1
+        _dense(wts.g_w2[k], wts.g_b2[k], h2, h1, scratch.hidden[off:off + h1],
+               scratch.g_hidden, m, True)
+        _dense(wts.g_w3[k], wts.g_b3[k], 2, h2, scratch.g_hidden, scratch.g_logits, m, False)
+        l0 = scratch.g_logits[0]
+        l1 = scratch.g_logits[1]
+        for px in range(m):
+            # softmax(l)[1] = sigmoid(l1 - l0), in float64 then rounded, so the float32 value
+            # is the correctly rounded one.
+            e = math.exp(np.float64(l0[px]) - np.float64(l1[px]))
+            p = np.float32(1.0 / (1.0 + e))
+            if p > best[q0 + px]:
+                best[q0 + px] = p
+                group[q0 + px] = k
+    for px in range(m):
+        if not valid[q0 + px]:
+            best[q0 + px] = np.float32(0.0)
+            group[q0 + px] = 0
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _heads_kernel(first: np.ndarray, n: int, start: int, frame: FrameBins, wts: FusedWeights,
+                  do_f: bool, do_g: bool, out: HeadOutputs,
+                  scratch: Scratch) -> None:  # pragma: no cover
     """Everything after the first-layer GEMM for pixels ``start .. start + n`` of a frame.
 
-    ``h`` (rows, >= n) holds the first layers' ``W x`` (F's rows first, then each G head's);
-    this adds the biases and F's one-hot terms, applies ReLU, runs F's remaining layers and the
-    G heads in chunks of ``hc.shape[1]`` pixels, and writes F(p) in mm to ``corr``, the maximum
-    edge probability over the heads to ``best`` and its head (first on ties) to ``group``
-    (both 0 for invalid pixels, as the zeroed scores of the torch path).
+    ``first`` (rows, >= n) holds the first layers' ``W x`` (F's rows first, then each G
+    head's); per chunk of ``scratch.hidden.shape[1]`` pixels (cache-resident) this adds the
+    biases and F's one-hot terms, applies ReLU, runs F's remaining layers and the G heads, and
+    writes into ``out``.
     """
-    nf = f_dims[0]
-    n_layers = f_dims.shape[0] - 1
-    n_heads, h2, h1 = g_w2.shape
-    rows = h.shape[0]
-    ch = hc.shape[1]
-    zero = np.float32(0.0)
+    ch = scratch.hidden.shape[1]
     for c0 in range(0, n, ch):
         m = min(ch, n - c0)
         q0 = start + c0
-        for j in range(rows):
-            src = h[j, c0:c0 + m]
-            dst = hc[j]
-            bj = bias[j]
-            if j < nf:
-                tr = tab_r[j]
-                ta = tab_a[j]
-                for px in range(m):
-                    v = src[px] + bj + tr[bin_range[q0 + px]] + ta[bin_amplitude[q0 + px]]
-                    dst[px] = max(v, zero)
-            else:
-                for px in range(m):
-                    dst[px] = max(src[px] + bj, zero)
+        _first_activations(first, c0, m, q0, frame, wts, scratch.hidden)
         if do_f:
-            src2 = hc[:nf]
-            for layer in range(n_layers):
-                dst2 = fa if layer % 2 == 0 else fb
-                last = layer == n_layers - 1
-                _dense(f_w[layer], f_b[layer], f_dims[layer + 1], f_dims[layer], src2, dst2, m,
-                       not last)
-                src2 = dst2
-            out = src2[0]
-            for px in range(m):
-                corr[q0 + px] = out[px] * t_clip
+            _range_chunk(wts, m, q0, scratch, out.correction)
         if do_g:
-            for px in range(m):
-                best[q0 + px] = -1.0
-                group[q0 + px] = 0
-            for k in range(n_heads):
-                off = nf + k * h1
-                _dense(g_w2[k], g_b2[k], h2, h1, hc[off:off + h1], tg, m, True)
-                _dense(g_w3[k], g_b3[k], 2, h2, tg, lg, m, False)
-                l0 = lg[0]
-                l1 = lg[1]
-                for px in range(m):
-                    # softmax(l)[1] = sigmoid(l1 - l0), in float64 then rounded (as the
-                    # reference does it), so the float32 value is the correctly rounded one.
-                    e = math.exp(np.float64(l0[px]) - np.float64(l1[px]))
-                    p = np.float32(1.0 / (1.0 + e))
-                    if p > best[q0 + px]:
-                        best[q0 + px] = p
-                        group[q0 + px] = k
-            for px in range(m):
-                if not valid[q0 + px]:
-                    best[q0 + px] = zero
-                    group[q0 + px] = 0
+            _boundary_chunk(wts, m, q0, frame.valid, scratch, out.best, out.group)
 
 
-class FastPatchNets:
-    """F and the four G heads over pixel-major ``[x_R x_A]`` bands (CPU fast path).
+# ---------------------------------------------------------------------------------------------
+# The inference path
 
-    The first layers of F (its x_R / x_A columns) and of the four heads are one
-    ``(40 + 4 * 40, 2 M)`` weight: one GEMM per band gives all 200 pre-activations (oneDNN when
-    available, see :func:`_onednn_linear`). A compiled kernel then adds the biases and F's
-    one-hot terms as table lookups and runs the small layers, vectorised over pixels in chunks
-    that stay in L1/L2. The same function as the modules up to float32 summation order
-    (F within ~2e-5 mm, probabilities within ~1e-6 of the float64 reference).
+
+class PatchNets:
+    """The package's one inference path of F and the four G heads (``pipeline.correct``).
+
+    Per band of pixels, given their pixel-major ``[x_R x_A]`` (``encoding.encode_rows``):
+
+    1. :meth:`first_layer`: one GEMM of :attr:`FusedWeights.first` against the band gives all
+       200 first-layer pre-activations (oneDNN on the CPU when available, see
+       :func:`_onednn_linear`; ``torch.mm`` on other devices);
+    2. :meth:`heads`: the rest, from the same :class:`FusedWeights`, with one of two backends
+       for a real reason (numba does not run on a GPU; torch's small-op overhead is several
+       times the arithmetic on a CPU):
+
+       * ``"numba"`` (the CPU's): :func:`_heads_kernel`, vectorised over pixels in chunks
+         that stay in L1/L2, writing straight into the frame's outputs;
+       * ``"torch"`` (every other device's): the same operations as torch ops on the device
+         (the heads as batched GEMMs), results copied into the same outputs. It agrees with
+         the numba backend up to float32 summation order (the tests bound it: the same edges,
+         F within 1e-3 mm); only the numba backend's output is pinned bit for bit.
+
+    Both compute the modules' function up to float32 summation order (F within ~2e-5 mm,
+    probabilities within ~1e-6 of the float64 oracle in ``test/oracles``).
 
     ``precision="bfloat16"`` rounds the first layers' inputs and weights to bfloat16 (float32
     accumulation): measured on the benchmark's Zen 5 (AVX512-BF16), networks 18 instead of
     24 ms of CPU per 180x140 frame, but R_F off by up to 0.1 mm and ~0.5 % of the edge pixels
     flipped (so the final range differs by tens of mm next to them): it misses the "same edges,
-    1e-3 mm" agreement with the reference that the float32 default keeps. Opt-in only.
+    1e-3 mm" agreement with the oracle that the float32 default keeps. Opt-in only.
 
     Args:
         range_net: the trained F.
@@ -463,81 +530,110 @@ class FastPatchNets:
         patch_size: P of the encoding.
         n_bins: one-hot width of the encoding.
         precision: ``"float32"`` or ``"bfloat16"``.
-        chunk: pixels per chunk of the kernel's small layers.
+        device: where the GEMM (and the torch backend) runs.
+        backend: ``"numba"`` or ``"torch"``; None = numba on the CPU, torch elsewhere.
+        chunk: pixels per chunk of the numba kernel.
     """
 
     def __init__(self, range_net: RangeRecoveryNet, boundary_nets: BoundaryNets,
                  patch_size: int, n_bins: int, precision: str = "float32",
+                 device: torch.device | str = "cpu", backend: str | None = None,
                  chunk: int = 256) -> None:
-        m = _check_fusable(range_net, boundary_nets, patch_size, n_bins, precision)
-
-        def np32(t: torch.Tensor) -> np.ndarray:
-            return np.ascontiguousarray(t.detach().cpu().float().numpy())
-
+        if precision not in ("float32", "bfloat16"):
+            raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
+        self.device = torch.device(device)
+        self.backend = backend or ("numba" if self.device.type == "cpu" else "torch")
+        if self.backend not in ("numba", "torch") or (
+                self.backend == "numba" and self.device.type != "cpu"):
+            raise InputError(f"backend must be 'numba' (CPU) or 'torch', got {backend!r} on "
+                             f"{self.device}")
+        self.weights = fuse_weights(range_net, boundary_nets, patch_size, n_bins)
         self.dtype = torch.bfloat16 if precision == "bfloat16" else torch.float32
-        w_f = range_net.layers[0].weight.detach().cpu().float()
-        g = boundary_nets
-        self.weight = torch.cat([w_f[:, :2 * m], g.first.weight.detach().cpu().float()]
-                                ).to(self.dtype).contiguous()
-        self.bias = np32(torch.cat([range_net.layers[0].bias, g.first.bias]))
-        self.table_range = np32(w_f[:, 2 * m:2 * m + n_bins])
-        self.table_amp = np32(w_f[:, 2 * m + n_bins:])
-        rest = range_net.layers[1:]
-        self.f_dims = np.array([w_f.shape[0]] + [layer.out_features for layer in rest],
-                               np.int64)
-        widest = int(max(self.f_dims[1:].max(), 1))
-        self.f_w = np.zeros((len(rest), widest, int(self.f_dims[:-1].max())), np.float32)
-        self.f_b = np.zeros((len(rest), widest), np.float32)
-        for i, layer in enumerate(rest):
-            self.f_w[i, :layer.out_features, :layer.in_features] = np32(layer.weight)
-            self.f_b[i, :layer.out_features] = np32(layer.bias)
-        self.g_w2 = np32(g.w2.transpose(1, 2))                    # (heads, h2, h1)
-        self.g_b2 = np32(g.b2[:, 0])                              # (heads, h2)
-        self.g_w3 = np32(g.w3.transpose(1, 2))                    # (heads, 2, h2)
-        self.g_b3 = np32(g.b3[:, 0])                              # (heads, 2)
-        self.rows = self.weight.shape[0]
-        self.n_inputs = 2 * m
+        self.weight = torch.from_numpy(self.weights.first).to(self.device, self.dtype)
+        self.rows, self.n_inputs = self.weights.first.shape
         self.chunk = int(chunk)
-        self.widest = widest
-        self.t_clip = np.float32(range_net.target_clip_mm)
-        self.linear = _pick_linear(self.dtype)
+        self.linear = _pick_linear(self.dtype) if self.device.type == "cpu" else _mkl_linear
+        if self.backend == "torch":
+            self.on_device = FusedWeights(*(torch.from_numpy(np.asarray(v)).to(self.device)
+                                            for v in self.weights))
 
-    def scratch(self) -> tuple[np.ndarray, ...]:
+    def scratch(self) -> Scratch | None:
         """Work arrays of one worker for :meth:`heads` (allocate once, reuse every band)."""
+        if self.backend != "numba":
+            return None
         ch = self.chunk
-        return (np.empty((self.rows, ch), np.float32), np.empty((self.widest, ch), np.float32),
-                np.empty((self.widest, ch), np.float32),
-                np.empty((self.g_w2.shape[1], ch), np.float32), np.empty((2, ch), np.float32))
+        widest = self.weights.f_w.shape[1]
+        return Scratch(np.empty((self.rows, ch), np.float32),
+                       np.empty((widest, ch), np.float32), np.empty((widest, ch), np.float32),
+                       np.empty((self.weights.g_w2.shape[1], ch), np.float32),
+                       np.empty((2, ch), np.float32))
 
-    def first_layer(self, x: torch.Tensor) -> np.ndarray:
+    def first_layer(self, x: torch.Tensor) -> torch.Tensor:
         """First-layer ``W x`` (no bias) of n pixels.
 
         Args:
-            x: (n, 2 M) float32 pixel-major ``[x_R x_A]`` (contiguous rows).
+            x: (n, 2 M) float32 pixel-major ``[x_R x_A]`` (contiguous rows, CPU).
 
         Returns:
-            (rows, n) float32 numpy array (channel-major).
+            (rows, n) float32 tensor on the device (channel-major).
         """
-        if self.dtype != torch.float32:
-            x = x.to(self.dtype)
-        return self.linear(self.weight, x).float().numpy()
+        return self.linear(self.weight, x.to(self.device, self.dtype)).float()
 
-    def heads(self, h: np.ndarray, n: int, start: int, bin_range: np.ndarray,
-              bin_amplitude: np.ndarray, valid: np.ndarray, do_f: bool, do_g: bool,
-              corr: np.ndarray, best: np.ndarray, group: np.ndarray,
-              scratch: tuple[np.ndarray, ...]) -> None:
-        """Run :func:`_heads_kernel` on pixels ``start .. start + n`` (flat frame indices).
+    def heads(self, first: torch.Tensor, n: int, start: int, frame: FrameBins, do_f: bool,
+              do_g: bool, out: HeadOutputs, scratch: Scratch | None) -> None:
+        """Everything after the first layer for pixels ``start .. start + n`` (flat indices).
 
         Args:
-            h: :meth:`first_layer` output of those pixels.
+            first: :meth:`first_layer` of those pixels.
             n, start: pixel count and first flat index.
-            bin_range, bin_amplitude: (H*W,) int32 bins of the frame.
-            valid: (H*W,) bool validity of the frame.
+            frame: the frame's bins and validity.
             do_f, do_g: run F / the G heads.
-            corr, best, group: (H*W,) outputs (float32, float32, int8), written at the pixels.
+            out: the frame's outputs, written at those pixels.
             scratch: from :meth:`scratch`.
         """
-        _heads_kernel(h, n, start, bin_range, bin_amplitude, valid, self.bias,
-                      self.table_range, self.table_amp, self.f_w, self.f_b, self.f_dims,
-                      self.t_clip, self.g_w2, self.g_b2, self.g_w3, self.g_b3, do_f, do_g, corr,
-                      best, group, *scratch)
+        if self.backend == "numba":
+            _heads_kernel(first.numpy(), n, start, frame, self.weights, do_f, do_g, out,
+                          scratch)
+        else:
+            _heads_torch(self.on_device, first, slice(start, start + n), frame, do_f, do_g,
+                         out)
+
+
+def _heads_torch(wts: FusedWeights, first: torch.Tensor, pixels: slice, frame: FrameBins,
+                 do_f: bool, do_g: bool, out: HeadOutputs) -> None:
+    """:func:`_heads_kernel`'s operations as torch ops on ``first``'s device.
+
+    Args:
+        wts: :class:`FusedWeights` as tensors on that device.
+        first: (rows, n) float32 first-layer ``W x`` of the pixels (overwritten).
+        pixels: their flat indices in the frame, a slice of length n.
+        frame, do_f, do_g, out: as :meth:`PatchNets.heads` (the group is the first maximum on
+            ties, as ``torch.max`` documents and the kernel does).
+    """
+    dev = first.device
+    nf = int(wts.f_dims[0])
+    bins_r = torch.from_numpy(frame.bin_range[pixels]).to(dev).long()
+    bins_a = torch.from_numpy(frame.bin_amplitude[pixels]).to(dev).long()
+    with torch.no_grad():
+        h = first.add_(wts.bias[:, None])
+        h[:nf].add_(wts.table_range[:, bins_r]).add_(wts.table_amp[:, bins_a])
+        h.relu_()
+        if do_f:
+            x = h[:nf]
+            dims = wts.f_dims.tolist()
+            for i in range(len(dims) - 1):
+                x = torch.addmm(wts.f_b[i, :dims[i + 1], None],
+                                wts.f_w[i, :dims[i + 1], :dims[i]], x)
+                if i < len(dims) - 2:
+                    x.relu_()
+            out.correction[pixels] = (x[0] * wts.t_clip).cpu().numpy()
+        if do_g:
+            n_heads, _h2, h1 = wts.g_w2.shape
+            hg = h[nf:].reshape(n_heads, h1, -1)
+            hg = torch.baddbmm(wts.g_b2[:, :, None], wts.g_w2, hg).relu_()
+            logits = torch.baddbmm(wts.g_b3[:, :, None], wts.g_w3, hg).double()
+            probs = (1.0 / (1.0 + torch.exp(logits[:, 0] - logits[:, 1]))).float()
+            best, group = probs.max(dim=0)
+            valid = torch.from_numpy(frame.valid[pixels]).to(dev)
+            out.best[pixels] = torch.where(valid, best, 0.0).cpu().numpy()
+            out.group[pixels] = torch.where(valid, group, 0).to(torch.int8).cpu().numpy()

@@ -3,40 +3,38 @@
 ``correct(model, range_mm, amplitude)`` runs, per frame:
 
 1. the per-pixel intrinsic calibration, giving R (NaN where the measurement is invalid);
-2. one patch encoding of every pixel (im2col of the NaN-padded frame, column layout), shared by
-   both networks: :class:`~.networks.FusedPatchNets` runs F's and the four G heads' first layers
-   as two GEMMs (a stacked 200 x 121 weight against the x_R and x_A rows), F's one-hot terms as
-   lookups, then the small layers (G's as batched GEMMs), all channels-first without copies;
+2. one patch encoding of every pixel, shared by both networks (``encoding``);
 3. R_F = R + F(p);
-4. G's four edge probabilities -> ``edges.edge_map_from_responses`` (max over orientations,
-   non-maximum suppression, hysteresis) -> binary edge map;
+4. G's four edge probabilities, reduced to their maximum and its orientation group ->
+   ``edges.edge_map_from_best`` (non-maximum suppression, hysteresis) -> binary edge map;
 5. ``geodesic.geodesic_filter`` of R_F over the K = 81 geodesic neighbours (sigma = 2).
 
 Either network can be switched off for the paper's component analysis. Invalid pixels (NaN, inf,
 range or amplitude <= 0) are NaN in every range output and 0 in ``confidence``.
 
-On the CPU (the default) steps 2-4 run on the **fast path** (issue 8), a :class:`_FastEngine`
-cached per model state, shape and precision:
+Steps 2-4 run in an :class:`_Engine` cached per model state, shape, precision and device (issue
+8):
 
 * compiled kernels fill NaN-padded range / log-amplitude planes and the one-hot bins into
   preallocated buffers (``encoding.frame_planes``);
-* the frame is cut into bands of ~1440 pixels; ``threads`` worker threads (default: torch's
-  thread count, capped by the usable CPUs) take bands in turn and, per band, encode the pixels
-  pixel-major into a cache-resident buffer (``encoding.encode_rows``), run one oneDNN GEMM for
-  the first layers of F and the four G heads, and one compiled kernel for the rest of both
-  networks (``networks.FastPatchNets``), which also reduces the four heads to the per-pixel
+* on the CPU the frame is cut into bands of ~1440 pixels; ``threads`` worker threads (default:
+  torch's thread count, capped by the usable CPUs) take bands in turn and, per band, encode the
+  pixels pixel-major into a cache-resident buffer (``encoding.encode_rows``), run one oneDNN
+  GEMM for the first layers of F and the four G heads, and one compiled kernel for the rest of
+  both networks (``networks.PatchNets``), which also reduces the four heads to the per-pixel
   maximum and its group. Workers run torch with 1 intra-op thread each (set for the call and
-  restored), so the two levels of threading never stack; numba's kernels release the GIL;
+  restored), so the two levels of threading never stack; numba's kernels release the GIL. On
+  another torch device the frame is one band, encoded on the CPU and run by ``PatchNets``'
+  torch backend on the device;
 * NMS + hysteresis (``edges.edge_map_from_best``) and the geodesic filter (serial numba
   kernels on ``numba.get_num_threads()`` Python threads). No OpenMP team runs anywhere in the
-  fast path, so no idle OpenMP thread spins against the working ones whatever wait policy
+  CPU path, so no idle OpenMP thread spins against the working ones whatever wait policy
   libgomp was loaded with.
 
-The fast path computes the same numbers as the torch path and as the straightforward reference
-(``reference_pipeline``): the same edges and the corrected range within ~1e-4 mm (float32
-summation order only; measured 6.1e-5 mm, one float32 ulp at 256-512 mm).
-``precision="bfloat16"`` is opt-in and misses that agreement (see ``FastPatchNets``).
-Other devices use the torch path (:class:`~.networks.FusedPatchNets` over the column encoding).
+The result agrees with the straightforward oracle (``test/oracles/reference_pipeline.py``): the
+same edges and the corrected range within ~1e-4 mm (float32 summation order only; measured
+6.1e-5 mm, one float32 ulp at 256-512 mm). ``precision="bfloat16"`` is opt-in and misses that
+agreement (see ``PatchNets``).
 """
 
 from __future__ import annotations
@@ -44,27 +42,20 @@ from __future__ import annotations
 import os
 import threading
 import weakref
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import torch
 
+from ..calibration.intrinsic import IntrinsicCalibration
 from ..errors import InputError
+from ..thread_pools import shared_pool
 from ..validation import check_array
-from .calibration import IntrinsicCalibration
-from .encoding import (
-    ColumnEncoding,
-    EncodingConfig,
-    encode_frame_columns,
-    encode_rows,
-    frame_planes,
-    plane_constants,
-)
-from .networks import BoundaryNets, FastPatchNets, FusedPatchNets, RangeRecoveryNet
+from .encoding import EncodingConfig, encode_rows, frame_planes, plane_constants
+from .networks import BoundaryNets, FrameBins, HeadOutputs, PatchNets, RangeRecoveryNet
 
-# Pixels per band of the fast path: the band's encodings (1440 x 240 float32, 1.4 MB) and the
+# Pixels per band on the CPU: the band's encodings (1440 x 240 float32, 1.4 MB) and the
 # GEMM output (200 x 1440) stay in L2/L3 between the encoding, the GEMM and the small layers.
 BAND_PIXELS = 1440
 
@@ -206,8 +197,8 @@ def correct(
         use_boundary: apply G + geodesic filtering (off: R-hat = R_F, "F alone").
         precision: ``"float32"`` (default: matches the reference within 1e-3 mm) or
             ``"bfloat16"`` (opt-in, faster first-layer GEMMs on AVX512-BF16/AMX CPUs, F off by
-            a few hundredths of a mm; see :class:`~.networks.FastPatchNets`).
-        threads: CPU fast path worker threads (default: torch's thread count, capped by the
+            a few hundredths of a mm; see :class:`~.networks.PatchNets`).
+        threads: worker threads on the CPU (default: torch's thread count, capped by the
             usable CPUs).
         geodesic: edge thresholds and geodesic filter constants to use instead of
             ``model.geodesic`` (None: the model's, i.e. the weights file's).
@@ -227,20 +218,12 @@ def correct(
     a3 = (a[None] if single else a).astype(np.float32, copy=False)
     calibrated = model.calibration.apply(r3, a3)
     dev = torch.device(device)
-    if dev.type == "cpu":
-        if any(p.device != dev for p in (*model.range_net.parameters(),
-                                         *model.boundary_nets.parameters())):
-            model.to(dev)
-        engine = _engine(model, precision, _worker_count(threads))
-        parts = [engine.correct(calibrated[i], a3[i], use_range_net, use_boundary, params)
-                 for i in range(r3.shape[0])]
-    else:
+    if any(p.device != dev for p in (*model.range_net.parameters(),
+                                     *model.boundary_nets.parameters())):
         model.to(dev)
-        fused = FusedPatchNets(model.range_net, model.boundary_nets, model.encoding.patch_size,
-                               model.encoding.n_bins, precision)
-        encodings = encode_frame_columns(calibrated, a3, model.encoding, device=dev)
-        parts = [_correct_one(model, fused, enc, calibrated[i], use_range_net, use_boundary,
-                              params) for i, enc in enumerate(encodings)]
+    engine = _engine(model, precision, _worker_count(threads), dev)
+    parts = [engine.correct(calibrated[i], a3[i], use_range_net, use_boundary, params)
+             for i in range(r3.shape[0])]
     fields = [np.stack(x) for x in zip(*parts, strict=True)]
     result = CorrectionResult(*fields)
     if single:
@@ -249,7 +232,7 @@ def correct(
 
 
 def _worker_count(threads: int | None) -> int:
-    """Fast-path workers: ``threads``, or torch's thread count capped by the usable CPUs."""
+    """CPU workers: ``threads``, or torch's thread count capped by the usable CPUs."""
     if threads is not None:
         if int(threads) < 1:
             raise InputError(f"threads must be >= 1, got {threads}")
@@ -258,74 +241,71 @@ def _worker_count(threads: int | None) -> int:
     return max(1, min(torch.get_num_threads(), usable or 1))
 
 
-_POOLS: dict[int, ThreadPoolExecutor] = {}
-_POOLS_LOCK = threading.Lock()
-if hasattr(os, "register_at_fork"):   # a forked child must not reuse the parent's dead threads
-    os.register_at_fork(after_in_child=_POOLS.clear)
+_ENGINES_LOCK = threading.Lock()
 # id(model) -> (weak reference to the model, cache key, engine).
-_ENGINES: dict[int, tuple[weakref.ref, tuple, _FastEngine]] = {}
+_ENGINES: dict[int, tuple[weakref.ref, tuple, _Engine]] = {}
 
 
-def _pool(workers: int) -> ThreadPoolExecutor:
-    """A process-wide pool of ``workers - 1`` threads (the caller is the last worker)."""
-    with _POOLS_LOCK:
-        pool = _POOLS.get(workers)
-        if pool is None:
-            pool = _POOLS[workers] = ThreadPoolExecutor(
-                max_workers=workers - 1, thread_name_prefix="tof-mpd-correct")
-        return pool
-
-
-def _model_key(model: CorrectionModel, precision: str, workers: int) -> tuple:
+def _model_key(model: CorrectionModel, precision: str, workers: int,
+               device: torch.device) -> tuple:
     """What the engine depends on: network tensors (identity and in-place version), shape..."""
     params = [*model.range_net.parameters(), *model.boundary_nets.parameters()]
-    return (model.shape, model.encoding, precision, workers,
+    return (model.shape, model.encoding, precision, workers, str(device),
             float(model.range_net.target_clip_mm),
             tuple((id(p), p.data_ptr(), p._version) for p in params))
 
 
-def _engine(model: CorrectionModel, precision: str, workers: int) -> _FastEngine:
-    """The cached fast-path engine of ``model`` (rebuilt when its weights change in place)."""
-    key = _model_key(model, precision, workers)
-    with _POOLS_LOCK:
+def _engine(model: CorrectionModel, precision: str, workers: int,
+            device: torch.device) -> _Engine:
+    """The cached engine of ``model`` (rebuilt when its weights change in place)."""
+    key = _model_key(model, precision, workers, device)
+    with _ENGINES_LOCK:
         entry = _ENGINES.get(id(model))
         if entry is not None and entry[0]() is model and entry[1] == key:
             return entry[2]
-    engine = _FastEngine(model, precision, workers)
-    with _POOLS_LOCK:
+    engine = _Engine(model, precision, workers, device)
+    with _ENGINES_LOCK:
         mid = id(model)
         _ENGINES[mid] = (weakref.ref(model, lambda _ref: _ENGINES.pop(mid, None)), key, engine)
     return engine
 
 
-class _FastEngine:
-    """Fused weights and every buffer of the CPU fast path for one model state and shape.
+class _Engine:
+    """Fused weights and every buffer of the correction for one model state, shape and device.
 
     Nothing is allocated per frame but the returned arrays (and the GEMM's band output, which
     the allocator recycles). One frame at a time (a lock serialises concurrent callers).
+
+    Args:
+        model: the model (its networks are read, not kept).
+        precision: ``"float32"`` or ``"bfloat16"``.
+        workers: worker threads on the CPU (1 on other devices).
+        device: where the networks run.
+        backend: :class:`~.networks.PatchNets`' backend (None: the device's own).
     """
 
-    def __init__(self, model: CorrectionModel, precision: str, workers: int) -> None:
+    def __init__(self, model: CorrectionModel, precision: str, workers: int,
+                 device: torch.device, backend: str | None = None) -> None:
         h, w = model.shape
         enc = model.encoding
         self.shape = (h, w)
         self.patch_size = enc.patch_size
         self.n_bins = enc.n_bins
-        self.nets = FastPatchNets(model.range_net, model.boundary_nets, enc.patch_size,
-                                  enc.n_bins, precision)
+        self.nets = PatchNets(model.range_net, model.boundary_nets, enc.patch_size,
+                              enc.n_bins, precision, device=device, backend=backend)
         self.consts = plane_constants(enc)
         half = enc.patch_size // 2
         self.r_pad = np.full((h + 2 * half, w + 2 * half), np.nan, np.float32)
         self.la_pad = np.full_like(self.r_pad, np.nan)
-        self.bin_range = np.zeros(h * w, np.int32)
-        self.bin_amplitude = np.zeros(h * w, np.int32)
         self.valid = np.zeros((h, w), bool)
-        self.corr = np.zeros(h * w, np.float32)
-        self.best = np.zeros(h * w, np.float32)
-        self.group = np.zeros(h * w, np.int8)
-        rows = max(1, BAND_PIXELS // w)
+        self.frame = FrameBins(np.zeros(h * w, np.int32), np.zeros(h * w, np.int32),
+                               self.valid.reshape(-1))
+        self.out = HeadOutputs(np.zeros(h * w, np.float32), np.zeros(h * w, np.float32),
+                               np.zeros(h * w, np.int8))
+        # A device takes the frame as one band (one transfer, one launch per layer).
+        rows = max(1, BAND_PIXELS // w) if device.type == "cpu" else h
         self.bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
-        self.workers = max(1, min(workers, len(self.bands)))
+        self.workers = max(1, min(workers if device.type == "cpu" else 1, len(self.bands)))
         self.x = [torch.empty((rows * w, self.nets.n_inputs)) for _ in range(self.workers)]
         self.scratch = [self.nets.scratch() for _ in range(self.workers)]
         self.lock = threading.Lock()
@@ -335,13 +315,12 @@ class _FastEngine:
         w = self.shape[1]
         x = self.x[t]
         xn = x.numpy()
-        valid = self.valid.reshape(-1)
         for y0, y1 in self.bands[t::self.workers]:
             n = (y1 - y0) * w
             encode_rows(self.r_pad, self.la_pad, y0, y1, self.patch_size, self.consts, xn)
             first = self.nets.first_layer(x[:n])
-            self.nets.heads(first, n, y0 * w, self.bin_range, self.bin_amplitude, valid, do_f,
-                            do_g, self.corr, self.best, self.group, self.scratch[t])
+            self.nets.heads(first, n, y0 * w, self.frame, do_f, do_g, self.out,
+                            self.scratch[t])
 
     def networks(self, do_f: bool, do_g: bool) -> None:
         """F and G over the whole frame, ``workers`` threads with 1 torch thread each."""
@@ -351,7 +330,7 @@ class _FastEngine:
             if self.workers == 1:
                 self._work(0, do_f, do_g)
                 return
-            pool = _pool(self.workers)
+            pool = shared_pool("correct", self.workers)
             futures = [pool.submit(_single_threaded, self._work, t, do_f, do_g)
                        for t in range(1, self.workers)]
             try:
@@ -370,8 +349,8 @@ class _FastEngine:
         with self.lock:
             frame_planes(np.ascontiguousarray(calibrated, np.float32),
                          np.ascontiguousarray(amplitude, np.float32), self.consts, self.n_bins,
-                         self.r_pad, self.la_pad, self.bin_range, self.bin_amplitude,
-                         self.valid)
+                         self.r_pad, self.la_pad, self.frame.bin_range,
+                         self.frame.bin_amplitude, self.valid)
             valid = self.valid.copy()
             calib = np.where(valid, calibrated, nan).astype(np.float32)
             if not (use_f or use_g):
@@ -380,12 +359,12 @@ class _FastEngine:
             self.networks(use_f, use_g)
             range_f = calib
             if use_f:
-                range_f = (calib + self.corr.reshape(h, w)).astype(np.float32)
+                range_f = (calib + self.out.correction.reshape(h, w)).astype(np.float32)
             if not use_g:
                 return (range_f, np.zeros((h, w), bool), valid.astype(np.float32), calib,
                         range_f, valid)
-            best = self.best.reshape(h, w).copy()
-            group = self.group.reshape(h, w).copy()
+            best = self.out.best.reshape(h, w).copy()
+            group = self.out.group.reshape(h, w).copy()
         confidence = np.where(valid, np.float32(1.0) - best, np.float32(0.0)).astype(np.float32)
         edges, filtered = _filter_from_best(geodesic, range_f, best, group)
         final = np.where(valid, filtered, nan).astype(np.float32)
@@ -404,54 +383,15 @@ def _single_threaded(fn: Any, *args: Any) -> None:
     fn(*args)
 
 
-def _correct_one(model: CorrectionModel, fused: FusedPatchNets, enc: ColumnEncoding,
-                 calibrated: np.ndarray, use_f: bool, use_g: bool,
-                 geodesic: GeodesicParams | None = None) -> tuple[np.ndarray, ...]:
-    """One frame: (range, edges, confidence, calibrated, range_f, valid), each (H, W); the
-    edge map and filter with ``geodesic`` (None: the model's)."""
-    h, w = calibrated.shape
-    nan = np.float32(np.nan)
-    valid = enc.valid.cpu().numpy()
-    calib = np.where(valid, calibrated, nan).astype(np.float32)
-    if not (use_f or use_g):
-        return calib, np.zeros((h, w), bool), valid.astype(np.float32), calib, calib, valid
-    correction, probs = fused(enc.x_range, enc.x_amplitude, enc.bin_range, enc.bin_amplitude)
-    range_f = calib
-    if use_f:
-        range_f = (calib + correction.cpu().numpy().reshape(h, w)).astype(np.float32)
-    if not use_g:
-        return (range_f, np.zeros((h, w), bool), valid.astype(np.float32), calib, range_f,
-                valid)
-    scores = probs.reshape(-1, h, w).cpu().numpy()                       # (4, H, W)
-    scores = np.where(valid, scores, np.float32(0.0)).astype(np.float32)
-    confidence = np.where(valid, 1.0 - scores.max(axis=0), 0.0).astype(np.float32)
-    edges, filtered = _filter_one(geodesic or model.geodesic, range_f, scores)
-    final = np.where(valid, filtered, nan).astype(np.float32)
-    return final, edges, confidence, calib, range_f, valid
-
-
 def _filter_from_best(params: GeodesicParams, range_f: np.ndarray, best: np.ndarray,
                       group: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Edge map from the heads' maximum and its group, then the geodesic filter of R_F."""
+    # Imported here: edges/geodesic are separate modules that pull in OpenCV/scipy.
     from . import edges as edge_module
     from . import geodesic
 
     edge_map, _strength = edge_module.edge_map_from_best(best, group, low=params.edge_low,
                                                          high=params.edge_high)
-    filtered = geodesic.geodesic_filter(range_f, edge_map, k=params.k, sigma=params.sigma,
-                                        step=params.step)
-    return np.asarray(edge_map, bool), np.asarray(filtered, np.float32)
-
-
-def _filter_one(params: GeodesicParams, range_f: np.ndarray, probs: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray]:
-    """Edge map from the four G responses, then the geodesic filter of R_F over it."""
-    # Imported here: edges/geodesic are separate modules that pull in OpenCV/scipy.
-    from . import edges as edge_module
-    from . import geodesic
-
-    edge_map, _strength = edge_module.edge_map_from_responses(probs, low=params.edge_low,
-                                                              high=params.edge_high)
     filtered = geodesic.geodesic_filter(range_f, edge_map, k=params.k, sigma=params.sigma,
                                         step=params.step)
     return np.asarray(edge_map, bool), np.asarray(filtered, np.float32)

@@ -29,9 +29,10 @@ import numpy as np
 import torch
 
 from .. import __version__
+from ..atomic_file import write_atomically
+from ..calibration.intrinsic import IntrinsicCalibration
 from ..errors import TofMpdError, WeightsError
 from ..npz_file import read_npz
-from .calibration import IntrinsicCalibration
 from .encoding import EncodingConfig
 from .networks import BoundaryNets, RangeRecoveryNet
 from .pipeline import CorrectionModel, GeodesicParams
@@ -114,15 +115,10 @@ def save_weights(path: str | os.PathLike[str], model: CorrectionModel, *,
         arrays["metadata"] = np.array(json.dumps(meta, sort_keys=True))
     except (TypeError, ValueError) as err:
         raise WeightsError(f"model.metadata must be JSON-serialisable: {err}") from err
-    tmp = path.with_name(path.name + ".tmp")
     try:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
-        os.replace(tmp, path)
+        return write_atomically(path, lambda stream: np.savez(stream, **arrays))
     except OSError as err:
-        tmp.unlink(missing_ok=True)
         raise WeightsError(f"cannot write weights file {path}: {err}") from err
-    return path
 
 
 def _read_arrays(path: Path) -> dict[str, np.ndarray]:

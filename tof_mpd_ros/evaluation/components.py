@@ -20,16 +20,16 @@ import torch
 from ..correction.edges import canny_score_map, edge_map_from_responses, ground_truth_edges
 from ..correction.encoding import encode_frame
 from ..correction.networks import boundary_scores
-from ..correction.pipeline import CorrectionModel, correct
+from ..correction.pipeline import CorrectionModel, CorrectionResult, correct
 from ..frame import ToFFrame
 from .diagnosis import RegionTally, edge_distance, edges_by_orientation
 from .metrics import (
     DEFAULT_THRESHOLDS_MM,
     EdgePRCurve,
+    FrameAccumulator,
     FrameEvaluation,
     boundary_region,
     edge_precision_recall,
-    evaluate_frames,
 )
 
 STAGES = ("raw", "calibrated", "F", "geodesic+G", "full")
@@ -110,60 +110,137 @@ def g_edge_strength(model: CorrectionModel, calibrated_mm: np.ndarray,
     return edge_map_from_responses(g_probabilities(model, calibrated_mm, amplitude))[1]
 
 
+@dataclass
+class FrameStages:
+    """One frame through every stage of the method, with its ground truth.
+
+    Attributes:
+        stages: stage (:data:`STAGES` order) -> (H, W) float32 range in mm, NaN = no estimate.
+        full: the full correction (:class:`~tof_mpd_ros.correction.pipeline.CorrectionResult`:
+            calibrated range, R_F, output and G's edge map).
+        seconds: wall time of the full correction, s.
+        gt_edges: (H, W) bool ground-truth edges of the reference.
+        boundary: (H, W) bool boundary region (within 5 px of ``gt_edges``).
+        edge_distance: (H, W) float32 distance to the nearest ground-truth edge, px (inf: none).
+    """
+
+    stages: dict[str, np.ndarray]
+    full: CorrectionResult
+    seconds: float
+    gt_edges: np.ndarray
+    boundary: np.ndarray
+    edge_distance: np.ndarray
+
+
+class ComponentTally:
+    """The package's one per-frame evaluation of the method's stages: ``add`` runs every stage
+    on a frame and pools the paper's metrics, ``result`` gives the
+    :class:`ComponentEvaluation`. ``tof-mpd evaluate`` (:func:`evaluate_model`) and the
+    benchmark (:func:`~tof_mpd_ros.evaluation.benchmark.run_benchmark`, which adds the other
+    methods on the same frames) both use it.
+
+    Args:
+        model: the correction model.
+        thresholds: accuracy-curve thresholds in mm.
+        diagnostics: also pool the stages' accuracy by distance to the edges and G's operating
+            point (``regions`` and ``g_operating_point`` of the result; empty when False).
+    """
+
+    def __init__(self, model: CorrectionModel,
+                 thresholds: tuple[float, ...] = DEFAULT_THRESHOLDS_MM, *,
+                 diagnostics: bool = True) -> None:
+        self.model = model
+        self.diagnostics = diagnostics
+        self._stages = {s: FrameAccumulator(thresholds) for s in STAGES}
+        self._regions = RegionTally(5.0)
+        self._seconds: list[float] = []
+        # per frame, for the edge curves: G's NMS strength, Canny's, the reference's edges and
+        # valid pixels; with diagnostics G's binary map, its winning head and the edges' groups
+        self._g_scores: list[np.ndarray] = []
+        self._canny: list[np.ndarray] = []
+        self._gts: list[np.ndarray] = []
+        self._valids: list[np.ndarray] = []
+        self._g_maps: list[np.ndarray] = []
+        self._g_groups: list[np.ndarray] = []
+        self._gt_groups: list[np.ndarray] = []
+
+    def add(self, range_mm: np.ndarray, amplitude: np.ndarray,
+            reference_mm: np.ndarray) -> FrameStages:
+        """Run every stage on one frame and pool it.
+
+        Args:
+            range_mm: (H, W) float32 raw radial range in mm (the model's crop), NaN = invalid.
+            amplitude: (H, W) float32 raw amplitude.
+            reference_mm: (H, W) float32 reference range in mm, NaN = missing.
+        """
+        start = time.perf_counter()
+        full = correct(self.model, range_mm, amplitude)
+        seconds = time.perf_counter() - start
+        g_only = correct(self.model, range_mm, amplitude, use_range_net=False)
+        stages = {"raw": range_mm, "calibrated": full.calibrated_mm, "F": full.range_f_mm,
+                  "geodesic+G": g_only.range_mm, "full": full.range_mm}
+        gt, gt_group = ground_truth_edges(reference_mm)
+        mask = boundary_region(reference_mm, edges=gt)
+        distance = edge_distance(gt)
+        for name in STAGES:
+            self._stages[name].add(stages[name], reference_mm, mask)
+        probs = g_probabilities(self.model, full.calibrated_mm, amplitude)
+        self._g_scores.append(edge_map_from_responses(probs)[1])
+        self._canny.append(canny_score_map(range_mm, highs=np.array(CANNY_HIGHS_MM)))
+        self._gts.append(gt)
+        self._valids.append(np.isfinite(reference_mm))
+        self._seconds.append(seconds)
+        if self.diagnostics:
+            self._regions.add(stages, reference_mm, distance)
+            self._g_maps.append(full.edges)
+            self._g_groups.append(np.argmax(probs, axis=0))
+            self._gt_groups.append(gt_group)
+        return FrameStages(stages, full, seconds, gt, mask, distance)
+
+    def result(self, examples: list[dict[str, np.ndarray]] | None = None
+               ) -> ComponentEvaluation:
+        """The pooled evaluation of the frames added so far (``examples``: arrays to plot)."""
+        edges = {"G": edge_precision_recall(self._g_scores, self._gts, G_THRESHOLDS,
+                                            valid=self._valids),
+                 "Canny (raw ToF)": edge_precision_recall(self._canny, self._gts, CANNY_HIGHS_MM,
+                                                          valid=self._valids)}
+        median = float(np.median(self._seconds)) if self._seconds else float("nan")
+        return ComponentEvaluation({s: acc.result() for s, acc in self._stages.items()}, edges,
+                                   median, len(self._seconds), examples or [],
+                                   self._regions.result() if self.diagnostics else {},
+                                   self._operating_point())
+
+    def _operating_point(self) -> dict[str, Any]:
+        """Precision / recall of G's binary edge map (2 px), overall and per orientation."""
+        if not self._g_maps:
+            return {}
+        point = edge_precision_recall([m.astype(np.float32) for m in self._g_maps], self._gts,
+                                      [0.5], valid=self._valids)
+        by_orientation = edges_by_orientation(
+            [m & v for m, v in zip(self._g_maps, self._valids, strict=True)], self._g_groups,
+            self._gts, self._gt_groups)
+        return {"precision": float(point.precision[0]), "recall": float(point.recall[0]),
+                "by_orientation": by_orientation}
+
+
 def evaluate_model(model: CorrectionModel, frames: Iterable[ToFFrame], *,
                    thresholds: tuple[float, ...] = DEFAULT_THRESHOLDS_MM,
                    n_examples: int = 3) -> ComponentEvaluation:
-    """Run every stage on every frame with a reference and pool the paper's metrics.
+    """Run every stage on every frame with a reference and pool the paper's metrics
+    (:class:`ComponentTally`); the first ``n_examples`` frames are kept for plots.
 
     Frames without a reference are skipped (nothing to score against).
     """
-    estimates: dict[str, list[np.ndarray]] = {s: [] for s in STAGES}
-    references, masks, g_scores, canny_scores, gts, valids = [], [], [], [], [], []
-    g_maps: list[np.ndarray] = []
-    g_groups: list[np.ndarray] = []
-    gt_groups: list[np.ndarray] = []
+    tally = ComponentTally(model, thresholds)
     examples: list[dict[str, np.ndarray]] = []
-    seconds: list[float] = []
     for frame in frames:
         if frame.reference_mm is None:
             continue
-        start = time.perf_counter()
-        full = correct(model, frame.range_mm, frame.amplitude)
-        seconds.append(time.perf_counter() - start)
-        g_only = correct(model, frame.range_mm, frame.amplitude, use_range_net=False)
-        stage = {"raw": frame.range_mm, "calibrated": full.calibrated_mm, "F": full.range_f_mm,
-                 "geodesic+G": g_only.range_mm, "full": full.range_mm}
-        for name in STAGES:
-            estimates[name].append(stage[name])
-        gt, gt_group = ground_truth_edges(frame.reference_mm)
-        references.append(frame.reference_mm)
-        masks.append(boundary_region(frame.reference_mm, edges=gt))
-        gts.append(gt)
-        g_maps.append(full.edges)
-        gt_groups.append(gt_group)
-        valids.append(np.isfinite(frame.reference_mm))
-        probs = g_probabilities(model, full.calibrated_mm, frame.amplitude)
-        g_groups.append(np.argmax(probs, axis=0))
-        g_scores.append(edge_map_from_responses(probs)[1])
-        canny_scores.append(canny_score_map(frame.range_mm, highs=np.array(CANNY_HIGHS_MM)))
+        out = tally.add(frame.range_mm, frame.amplitude, frame.reference_mm)
         if len(examples) < n_examples:
-            examples.append({"reference": frame.reference_mm, **stage,
-                             "amplitude": frame.amplitude, "edges_g": full.edges})
-    stages = {name: evaluate_frames(est, references, thresholds, boundary_masks=masks)
-              for name, est in estimates.items()}
-    edges = {"G": edge_precision_recall(g_scores, gts, G_THRESHOLDS, valid=valids),
-             "Canny (raw ToF)": edge_precision_recall(canny_scores, gts, CANNY_HIGHS_MM,
-                                                      valid=valids)}
-    median = float(np.median(seconds)) if seconds else float("nan")
-    regions = region_accuracy(estimates, references, gts)
-    point = edge_precision_recall([m.astype(np.float32) for m in g_maps], gts, [0.5],
-                                  valid=valids) if g_maps else None
-    operating = {} if point is None else {
-        "precision": float(point.precision[0]), "recall": float(point.recall[0]),
-        "by_orientation": edges_by_orientation(
-            [m & v for m, v in zip(g_maps, valids, strict=True)], g_groups, gts, gt_groups)}
-    return ComponentEvaluation(stages, edges, median, len(references), examples, regions,
-                               operating)
+            examples.append({"reference": frame.reference_mm, **out.stages,
+                             "amplitude": frame.amplitude, "edges_g": out.full.edges})
+    return tally.result(examples)
 
 
 def region_accuracy(estimates: dict[str, list[np.ndarray]], references: list[np.ndarray],

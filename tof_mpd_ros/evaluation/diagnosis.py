@@ -6,6 +6,8 @@ The benchmark's findings quote these instead of reasoning about causes:
   interior), so "it blurs the boundaries" is a number in the ≤ 2 px region;
 * :func:`edges_by_orientation` — G's edge map against the reference's edges per orientation
   group (which directions G finds, and whether it names them right);
+* :class:`NoiseTally` — the calibrated error away from boundaries split into pixel noise and a
+  spatially smooth bias (what smoothing can and cannot remove);
 * :class:`MissTally` — of a method's misses (|error| ≥ 5 mm or no answer), the share that is
   *noise-limited* (the local mean error over 5 × 5 valid pixels is within 5 mm: averaging would
   have fixed it) and the share *beyond the truncation* of F's target (|reference − calibrated|
@@ -15,6 +17,7 @@ The benchmark's findings quote these instead of reasoning about causes:
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -175,5 +178,38 @@ class MissTally:
                 "methods": methods}
 
 
-__all__ = ["ORIENTATIONS", "REGIONS", "MissTally", "RegionTally", "edge_distance",
+@dataclass
+class NoiseTally:
+    """Splits the calibrated error away from boundaries into pixel noise and smooth bias.
+
+    Per frame, ``e = calibrated - reference`` on valid non-boundary pixels; the smooth part is
+    e's normalised box mean over ``size`` x ``size`` valid non-boundary neighbours; the noise
+    part is the residual. Sums of squares are pooled over frames.
+    """
+
+    size: int = 5
+    noise_sq: float = 0.0
+    bias_sq: float = 0.0
+    n: int = 0
+
+    def add(self, calibrated: np.ndarray, reference: np.ndarray, boundary: np.ndarray) -> None:
+        """Pool one frame: (H, W) calibrated and reference range in mm, (H, W) bool region."""
+        e = calibrated.astype(np.float64) - reference
+        m = np.isfinite(e) & ~boundary
+        if not m.any():
+            return
+        smooth = local_mean(e, m, self.size)[m]
+        self.noise_sq += float(np.square(e[m] - smooth).sum())
+        self.bias_sq += float(np.square(smooth).sum())
+        self.n += int(m.sum())
+
+    def to_dict(self) -> dict:
+        total = self.noise_sq + self.bias_sq
+        return {"noise_share": self.noise_sq / total if total > 0 else None,
+                "noise_rms_mm": float(np.sqrt(self.noise_sq / self.n)) if self.n else None,
+                "bias_rms_mm": float(np.sqrt(self.bias_sq / self.n)) if self.n else None,
+                "n_pixels": self.n, "box_px": self.size}
+
+
+__all__ = ["ORIENTATIONS", "REGIONS", "MissTally", "NoiseTally", "RegionTally", "edge_distance",
            "edges_by_orientation", "local_mean"]

@@ -1,4 +1,4 @@
-"""Sim-vs-real mismatch tool (SPEC §5): locate where a real recording departs from the
+"""Sim-vs-real mismatch tool (docs/mismatch.md): locate where a real recording departs from the
 simulated cell, name the physics the simulator left out, fit it, and show the fit improve.
 
 * :func:`analyse` — frames in, :class:`Analysis` out (ranking, selected effects, fitted config,

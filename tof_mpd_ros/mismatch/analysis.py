@@ -31,17 +31,18 @@ from .fit import (
     score_fit,
 )
 from .likelihood import REFERENCE_NOISE_MM, tile_t_statistic, total_sigma
-from .locate import describe_stratum, locate, strata
+from .locate import locate, strata, stratum_facts
 from .predict import FramePredictor
 from .profile import (
     ALBEDO_EFFECT,
-    CAMERA_WINDOW_WHY,
+    CAMERA_WINDOW_REASONS,
     CAMERA_WINDOWS,
     PROFILE_EFFECTS,
     adopt_recording,
     albedo_from_interreflection,
     describe_profile,
 )
+from .wording import phrase
 
 _log = logging.getLogger(__name__)
 
@@ -249,25 +250,8 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
 
     search = _Search(problem, descriptors, location, min_score, min_t, progress,
                      units_assumed=not monitor)
-    profile: list[str] = []
-    if not monitor:
-        # the camera first: what every camera has its own values of, then the physics on top
-        own = [c for c in candidates if c in PROFILE_EFFECTS]
-        profile = search.greedy(own, len(own))
-        # the camera's level stays a free profile parameter while physics is named on top
-        search.problem = replace(search.problem, free_level=True, _base_cost={}, _level=None)
-        search.refit = profile
-        # what the camera has its own value of within a window (the scene's albedo, known
-        # only within the grey world's doubt, sets the interreflection's strength; the lens
-        # its blur) is part of the profile; left in the residual, other effects would absorb
-        # it. Fitted with the level free: interreflection lifts every range a little
-        own = [c for c in candidates if c in CAMERA_WINDOWS]
-        search.profile_boxes = {c: window_box(c) for c in own}
-        profile += search.greedy(own, len(own), boxes=search.profile_boxes)
-        search.refit = profile
-        scene = [c for c in candidates if c not in PROFILE_EFFECTS]
-    else:
-        scene = list(candidates)
+    profile, scene = (([], list(candidates)) if monitor
+                      else _camera_first(search, candidates))
     selected = search.greedy(scene, max_effects) if max_effects > 0 else []
     # interreflection beyond the albedo's doubt is named physics, no longer the profile's
     profile = [e for e in profile if e not in selected]
@@ -285,6 +269,26 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
                                               profile)
     analysis.unexplained = search.unexplained
     return analysis
+
+
+def _camera_first(search: _Search, candidates: Sequence[str]) -> tuple[list[str], list[str]]:
+    """One-shot: name the camera's profile first (what every camera has its own values of,
+    then what it has within a window), then leave the level free for the physics on top.
+    Returns the profile effects taken and the candidates left for the scene rounds."""
+    own = [c for c in candidates if c in PROFILE_EFFECTS]
+    profile = search.greedy(own, len(own))
+    # the camera's level stays a free profile parameter while physics is named on top
+    search.problem = replace(search.problem, free_level=True, _base_cost={}, _level=None)
+    search.refit = profile
+    # what the camera has its own value of within a window (the scene's albedo, known only
+    # within the grey world's doubt, sets the interreflection's strength; the lens its blur)
+    # is part of the profile; left in the residual, other effects would absorb it. Fitted
+    # with the level free: interreflection lifts every range a little
+    own = [c for c in candidates if c in CAMERA_WINDOWS]
+    search.profile_boxes = {c: window_box(c) for c in own}
+    profile += search.greedy(own, len(own), boxes=search.profile_boxes)
+    search.refit = profile
+    return profile, [c for c in candidates if c not in PROFILE_EFFECTS]
 
 
 @dataclass
@@ -363,9 +367,9 @@ class _Search:
                 self.unexplained.append({
                     "round": k + 1, "effect": r.effect, "score": round(r.score, 3),
                     "parameters_at_edge": {},
-                    "why": f"{param} {r.parameters[param]:.2f} is within what the camera "
-                           f"itself may have ({lo:.2f}-{hi:.2f}: {CAMERA_WINDOW_WHY[r.effect]})"
-                           ": not named as missing physics",
+                    "why": phrase("unexplained_why", {
+                        "case": "camera_window", "param": param, "value": r.parameters[param],
+                        "low": lo, "high": hi, **CAMERA_WINDOW_REASONS[r.effect]}),
                     "where": self.location.get("flagged", [])[:3]})
                 continue
             edge = parameters_at_edge(r)
@@ -377,8 +381,7 @@ class _Search:
             self.unexplained.append({
                 "round": k + 1, "effect": r.effect, "score": round(r.score, 3),
                 "parameters_at_edge": edge,
-                "why": "fitted at the edge of its realistic range: the model does not explain "
-                       "this residual",
+                "why": phrase("unexplained_why", {"case": "edge"}),
                 "where": self.location.get("flagged", [])[:3]})
         return None
 
@@ -587,9 +590,27 @@ def residual_metrics(residual: Sequence[np.ndarray], sigma: Sequence[np.ndarray]
 
 def explain(problem: Problem, result: FitResult,
             descriptors: Sequence[dict[str, np.ndarray]]) -> str:
-    """Evidence in words: what the fitted effect corrects, where, and how well it matches."""
+    """Evidence in words (``templates/mismatch.txt``, ``evidence``): what the fitted effect
+    corrects, where, and how well it matches; a candidate that could not be fitted gives its
+    note."""
     if result.note:
         return result.note
+    return phrase("evidence", evidence_facts(problem, result, descriptors))
+
+
+def evidence_facts(problem: Problem, result: FitResult,
+                   descriptors: Sequence[dict[str, np.ndarray]]) -> dict[str, Any]:
+    """What a fitted candidate's evidence says, measured on the held-out pixels.
+
+    Returns:
+        ``too_few`` (True when fewer than 10 held-out pixels: nothing else then); else
+        ``parameters`` (the fit's), ``test_gain_mnats`` (held-out gain, millinats per pixel),
+        ``t`` (tile t-statistic), ``correction`` (None when the fit changes no prediction, else
+        ``correlation`` of the correction with the residual clipped at 6σ, its ``rms_mm`` and
+        ``where`` it is largest, :func:`_concentration`) and ``variance_ratio`` (mean z² of
+        the residual under the nominal noise model; None unless the effect is the noise model
+        or the ratio is more than 0.5 from 1).
+    """
     test = problem.frames_of("test")
     masks = problem.masks("test")
     res, sig, corr, desc = [], [], [], {n: [] for n in DESCRIPTORS}
@@ -603,26 +624,28 @@ def explain(problem: Problem, result: FitResult,
         for n in DESCRIPTORS:
             desc[n].append(descriptors[i][n][m])
     if not res or sum(x.size for x in res) < 10:
-        return "too few held-out pixels to judge"
+        return {"too_few": True}
     r, s, c = (np.concatenate(x) for x in (res, sig, corr))
     flat = {n: np.concatenate(v) for n, v in desc.items()}
-    params = ", ".join(f"{k} {v:.3g}" for k, v in result.parameters.items()) or "switched on"
-    words = [f"fitted {params}",
-             f"held-out gain {1000 * result.test_gain:.1f} mnats/px (t = {result.t_stat:.1f})"]
+    facts: dict[str, Any] = {"too_few": False, "parameters": dict(result.parameters),
+                             "test_gain_mnats": 1000 * result.test_gain, "t": result.t_stat,
+                             "correction": None, "variance_ratio": None}
     rc = np.clip(r, -6 * s, 6 * s)
     if np.ptp(c) > 1e-6:
-        rho = float(np.corrcoef(c, rc)[0, 1])
-        words.append(f"its correction correlates {rho:.2f} with the residual "
-                     f"(RMS correction {np.sqrt(np.mean(c ** 2)):.2f} mm)")
-        words.append(_concentration(flat, c))
+        facts["correction"] = {"correlation": float(np.corrcoef(c, rc)[0, 1]),
+                               "rms_mm": np.sqrt(np.mean(c ** 2)),
+                               "where": _concentration(flat, c)}
     z2 = float(np.mean((rc / s) ** 2))
     if result.effect == "noise_model" or abs(z2 - 1.0) > 0.5:
-        words.append(f"residual variance {z2:.2f}× the nominal noise model")
-    return "; ".join(w for w in words if w)
+        facts["variance_ratio"] = z2
+    return facts
 
 
-def _concentration(flat: dict[str, np.ndarray], correction: np.ndarray) -> str:
-    """Where the correction is largest: the descriptor |correction| follows most closely."""
+def _concentration(flat: dict[str, np.ndarray], correction: np.ndarray) -> dict[str, Any] | None:
+    """Where the correction is largest: the descriptor |correction| follows most closely
+    (``descriptor``, Spearman ``rho``), its bin of largest mean |correction| (``stratum``,
+    :func:`.locate.stratum_facts`) with that mean (``mean_mm``) and the overall one
+    (``overall_mm``). None when no descriptor follows it (|rho| < 0.2): spread evenly."""
     mag = np.abs(correction)
     best, best_rho = None, 0.0
     for name, values in flat.items():
@@ -633,11 +656,10 @@ def _concentration(flat: dict[str, np.ndarray], correction: np.ndarray) -> str:
         if abs(rho) > abs(best_rho):
             best, best_rho = name, rho
     if best is None or abs(best_rho) < 0.2:
-        return "correction spread evenly over the image"
+        return None
     ok = np.isfinite(flat[best])
     # huge σ: no clipping, only the bins' means are used here
     st = strata(best, flat[best][ok], mag[ok], np.full(int(ok.sum()), 1e12))
     top = max(st, key=lambda x: x.mean_mm)
-    return (f"correction concentrated where {describe_stratum(top.as_dict())} "
-            f"(mean {top.mean_mm:.2f} mm vs {mag.mean():.2f} mm overall; "
-            f"rank correlation {best_rho:.2f} with {best})")
+    return {"stratum": stratum_facts(top.as_dict()), "mean_mm": top.mean_mm,
+            "overall_mm": mag.mean(), "rho": best_rho, "descriptor": best}

@@ -1,4 +1,4 @@
-"""The concealed-effect benchmark of the mismatch tool (SPEC §5 "proof on concealed data").
+"""The concealed-effect benchmark of the mismatch tool (docs/mismatch.md, "5. Benchmark").
 
 For each case a "real" sweep is generated (:mod:`.cases`) carrying a random concealed effect
 with random parameters, nothing (a control), or two effects. The frames are written as an
@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import MismatchError
 from ..recordings import save_npz
+from ..templates import render
 from .analysis import MIN_SCORE, MIN_T, analyse
 from .cases import CONCEALABLE, PATHTRACE_OWN, generate_case, truth_config
 from .data import load_frames
@@ -152,6 +153,28 @@ def _ratio_cut(before: float | None, after: float | None) -> float | None:
     return 1.0 - after / before
 
 
+def _mean(xs: list[Any]) -> float | None:
+    """Mean of the values that are not None (None when there are none)."""
+    xs = [x for x in xs if x is not None]
+    return float(np.mean(xs)) if xs else None
+
+
+def _median(xs: list[Any]) -> float | None:
+    """Median of the values that are not None (None when there are none)."""
+    xs = [x for x in xs if x is not None]
+    return float(np.median(xs)) if xs else None
+
+
+def _by_base(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Cases, top-1 and false-alarm rate per kind of base camera."""
+    out = {}
+    for b in sorted({r.get("base", "nominal") for r in rows}):
+        mine = [r for r in rows if r.get("base", "nominal") == b]
+        out[b] = {"cases": len(mine), "top1": _mean([r["top1"] for r in mine]),
+                  "false_alarm_rate": _mean([not r["top1"] for r in mine if not r["truth"]])}
+    return out
+
+
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Aggregate scores of scored cases."""
     ctrl = [r for r in rows if not r["truth"]]
@@ -167,84 +190,49 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     perr = [v for r in eff for v in r["parameter_error"].values() if np.isfinite(v)]
     doubles = [r for r in eff if len(r["truth"]) == 2]
 
-    def mean(xs: list[Any]) -> float | None:
-        xs = [x for x in xs if x is not None]
-        return float(np.mean(xs)) if xs else None
-
-    def median(xs: list[Any]) -> float | None:
-        xs = [x for x in xs if x is not None]
-        return float(np.median(xs)) if xs else None
-
     per_effect: dict[str, list[bool]] = {}
     for r in eff:
         if len(r["truth"]) == 1:
             per_effect.setdefault(r["truth"][0], []).append(r["top1"])
-    bases = sorted({r.get("base", "nominal") for r in rows})
-    by_base = {b: {"cases": sum(r.get("base", "nominal") == b for r in rows),
-                   "top1": mean([r["top1"] for r in rows if r.get("base", "nominal") == b]),
-                   "false_alarm_rate": mean([not r["top1"] for r in ctrl
-                                             if r.get("base", "nominal") == b])}
-               for b in bases}
     static = [r for r in ctrl if r.get("static")]
     return {
         "cases": len(rows), "controls": len(ctrl), "effect_cases": len(eff),
-        "by_base": by_base,
+        "by_base": _by_base(rows),
         "static_controls": len(static),
         "pose_or_timing_named_on_static_controls": sum(r.get("pose_or_timing_named", False)
                                                        for r in static),
         "two_effect_cases": len(doubles),
-        "top1_accuracy": mean([r["top1"] for r in rows]),
-        "top1_accuracy_effect_cases": mean([r["top1"] for r in eff]),
-        "false_alarm_rate": mean([not r["top1"] for r in ctrl]),
-        "both_found_rate_two_effect_cases": mean([r["both_found"] for r in doubles]),
-        "parameter_error_median": median(perr),
-        "rmse_cut_mean": mean(cuts), "rmse_cut_median": median(cuts),
+        "top1_accuracy": _mean([r["top1"] for r in rows]),
+        "top1_accuracy_effect_cases": _mean([r["top1"] for r in eff]),
+        "false_alarm_rate": _mean([not r["top1"] for r in ctrl]),
+        "both_found_rate_two_effect_cases": _mean([r["both_found"] for r in doubles]),
+        "parameter_error_median": _median(perr),
+        "rmse_cut_mean": _mean(cuts), "rmse_cut_median": _median(cuts),
         # the same cut with the true effects and parameters given (the ceiling), and the share
         # of the ceiling's cut the tool achieves (sum of cuts / sum of ceilings)
-        "rmse_cut_oracle_mean": mean(oracle), "rmse_cut_oracle_median": median(oracle),
+        "rmse_cut_oracle_mean": _mean(oracle), "rmse_cut_oracle_median": _median(oracle),
         "rmse_cut_share_of_oracle": (sum(c for c, _ in achieved) / ceiling if ceiling > 0
                                      else None),
-        "excess_rmse_cut_interior_mean": mean(ex), "excess_rmse_cut_interior_median": median(ex),
-        "per_effect_top1": {k: mean(v) for k, v in sorted(per_effect.items())},
+        "excess_rmse_cut_interior_mean": _mean(ex), "excess_rmse_cut_interior_median": _median(ex),
+        "per_effect_top1": {k: _mean(v) for k, v in sorted(per_effect.items())},
         "per_effect_parameter_error_median": {
-            k: median([r["parameter_error"][k] for r in eff if k in r["parameter_error"]])
+            k: _median([r["parameter_error"][k] for r in eff if k in r["parameter_error"]])
             for k in sorted({k for r in eff for k in r["parameter_error"]})},
         # how visible the effects are globally (the tool's own before-modelling statistics)
-        "concealment_median_abs_global_mean_mm": median(
+        "concealment_median_abs_global_mean_mm": _median(
             [abs(r["global_mean_residual_mm"]) for r in eff
              if r.get("global_mean_residual_mm") is not None]),
-        "concealment_median_global_variance_ratio": median(
+        "concealment_median_global_variance_ratio": _median(
             [r.get("global_variance_ratio") for r in eff]),
-        "controls_median_global_variance_ratio": median(
+        "controls_median_global_variance_ratio": _median(
             [r.get("global_variance_ratio") for r in ctrl]),
     }
 
 
-def _num(x: float | None) -> str:
-    return "  n/a" if x is None else f"{x:5.2f}"
-
-
 def text_table(rows: list[dict[str, Any]], summary: dict[str, Any]) -> str:
-    """Plain-text table of the cases and the summary."""
-    lines = [f"{'case':>6}  {'truth':34s} {'selected':34s} ok  rmse b/a/oracle (mm)  "
-             "excess b/a (mm)"]
-    for r in rows:
-        lines.append(
-            f"{r['case']!s:>6}  {'+'.join(r['truth']) or 'none':34s} "
-            f"{'+'.join(r['selected']) or 'none':34s} {'Y' if r['top1'] else 'n':2s}  "
-            f"{_num(r['rmse_before_mm'])}/{_num(r['rmse_after_mm'])}/"
-            f"{_num(r.get('oracle_rmse_after_mm'))}    "
-            f"{_num(r['excess_before_mm'])}/{_num(r['excess_after_mm'])}")
-    lines.append("")
-    for k, v in summary.items():
-        if not isinstance(v, dict):
-            lines.append(f"{k:36s} {v if not isinstance(v, float) else round(v, 4)}")
-    lines.append("per-effect top-1: " + ", ".join(
-        f"{k} {v:.2f}" for k, v in summary["per_effect_top1"].items()))
-    lines.append("per-effect median parameter error: " + ", ".join(
-        f"{k} {v:.3f}" for k, v in summary["per_effect_parameter_error_median"].items()
-        if v is not None))
-    return "\n".join(lines)
+    """Plain-text table of the cases and the summary (the package template
+    ``templates/mismatch_benchmark.txt``)."""
+    return render("mismatch_benchmark.txt", rows=rows, summary=summary)
 
 
 def reselect(result: dict[str, Any]) -> dict[str, Any]:

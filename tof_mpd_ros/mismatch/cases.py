@@ -25,16 +25,14 @@ from typing import Any
 
 import numpy as np
 
+from ..arm.viewpoints import view_pose_mm
 from ..camera import Intrinsics
 from ..frame import ToFFrame
-from ..sim.poses import make_pose, pose_mm_to_m
+from ..pose import make_pose, pose_mm_to_m, rotvec_to_matrix
 from ..sim.raycast import render_surface
 from ..sim.scene import Scene, make_scene
 from ..sim.structured_light import FusionConfig, reference_range
-from ..sim.tof import ToFConfig, render_tof
-from ..sim.tof.effects.wiggling import wiggle_mm
-from ..sim.tof.warp import rotation_matrix
-from ..sim.viewpoints import view_pose_mm
+from ..sim.tof import ToFConfig, render_tof, wiggle_mm
 from .profile import with_amplitude_units
 
 #: effects the benchmark conceals; ``phase_wrapping`` is nominal and has no parameter, and at
@@ -199,7 +197,7 @@ def _true_pose(sweep: Sweep, scene: Scene, t_s: float, effects: dict[str, dict])
     pose = sweep.pose_mm(scene, t_s)
     if "hand_eye" in effects:
         p = effects["hand_eye"]
-        rot = rotation_matrix(1e-3 * np.array([p["rx_mrad"], p["ry_mrad"], p["rz_mrad"]]))
+        rot = rotvec_to_matrix(1e-3 * np.array([p["rx_mrad"], p["ry_mrad"], p["rz_mrad"]]))
         pose = pose @ make_pose(rot, np.array([p["tx_mm"], p["ty_mm"], p["tz_mm"]]))
     return pose
 

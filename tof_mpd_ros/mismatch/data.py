@@ -1,7 +1,8 @@
 """Real frames for the mismatch tool: loading, checks, camera motion and the train/held-out split.
 
-Frames come from a recording directory / ``.mcap`` file or the NPZ interchange (SPEC §3). Every
-frame needs its reference (the reference *is* the scene the simulator predicts from).
+Frames come from a recording directory / ``.mcap`` file or the NPZ interchange
+(docs/recordings.md). Every frame needs its reference (the reference *is* the scene the simulator
+predicts from).
 """
 
 from __future__ import annotations
@@ -11,10 +12,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import MismatchError, TofMpdError
 from ..frame import ToFFrame
+from ..pose import matrix_to_rotvec
 from ..sim.tof import CameraMotion
 
 #: frames further apart than this are separate stops of the arm: the camera is taken at rest
@@ -24,10 +25,11 @@ SPLIT_TILE_PX = 8
 
 
 def load_frames(path: str | Path) -> list[ToFFrame]:
-    """Frames of a recording (directory or ``.mcap``) or an interchange ``.npz``; a folder laid
-    out like the Azure Kinect sample (``depth_000.npy``, ``ir_000.npy``, ``calibration.json``)
-    becomes one frame with its plane-fit reference (:mod:`.realdata`), and so does an Analog
-    Devices folder (``depth_mode3.npy`` ...: its mode 3).
+    """Frames of a recording (directory or ``.mcap``) or an interchange ``.npz``, opened by
+    :func:`tof_mpd_ros.recordings.iter_frames` (so ``.NPZ`` too); a folder laid out like the
+    Azure Kinect sample (``depth_000.npy``, ``ir_000.npy``, ``calibration.json``) becomes one
+    frame with its plane-fit reference (:mod:`.realdata`), and so does an Analog Devices folder
+    (``depth_mode3.npy`` ...: its mode 3).
 
     Raises:
         MismatchError: the path does not exist, holds no frame, or a frame has no reference.
@@ -40,14 +42,9 @@ def load_frames(path: str | Path) -> list[ToFFrame]:
         return [azure_kinect_frame(path)[0]]
     if is_adi_dir(path):
         return [adi_frame(path, 3)]   # the long-range mode; the CLI's --mode picks another
+    from ..recordings import iter_frames
     try:
-        if path.suffix == ".npz":
-            from ..recordings import load_npz
-            frames = load_npz(path)
-        else:
-            from ..recordings import RecordingReader
-            with RecordingReader(path) as reader:
-                frames = list(reader.frames())
+        frames = list(iter_frames(path))
     except TofMpdError as err:
         raise MismatchError(f"{path}: cannot read frames: {err}") from err
     check_frames(frames)
@@ -93,7 +90,7 @@ def camera_motion(frames: Sequence[ToFFrame]) -> list[CameraMotion | None]:
             continue
         rot_i = f.pose[:3, :3]
         linear = rot_i.T @ (b.pose[:3, 3] - a.pose[:3, 3]) * 1e3 / dt
-        rel = Rotation.from_matrix(a.pose[:3, :3].T @ b.pose[:3, :3]).as_rotvec()
+        rel = matrix_to_rotvec(a.pose[:3, :3].T @ b.pose[:3, :3])
         # rel is in frame a's axes; frames are close, so it is taken as frame i's
         angular = rel / dt
         out.append(CameraMotion(tuple(float(v) for v in linear),

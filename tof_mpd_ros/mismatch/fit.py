@@ -32,7 +32,7 @@ from .likelihood import (
 )
 from .predict import FramePredictor, Prediction
 
-#: the candidate library of SPEC §5 (``none`` is the answer when none of them is significant)
+#: the candidate library (docs/mismatch.md); ``none`` is the answer when none is significant
 CANDIDATES: tuple[str, ...] = (
     "multipath", "mixed_pixels", "wiggling", "amplitude_bias", "lens_scatter", "subsurface",
     "phase_wrapping", "pixel_offset", "temperature_drift", "time_offset", "hand_eye",

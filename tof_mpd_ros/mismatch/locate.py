@@ -18,6 +18,7 @@ import numpy as np
 from scipy import stats
 
 from .features import DESCRIPTORS
+from .wording import phrase
 
 #: fixed bin edges for descriptors whose scale is known; the others use quantiles
 FIXED_BINS: dict[str, tuple[float, ...]] = {
@@ -157,15 +158,18 @@ def locate(descriptors: Sequence[dict[str, np.ndarray]], residual: Sequence[np.n
 
 
 def describe_stratum(st: dict[str, Any]) -> str:
-    """Words for a stratum: ``"edge_distance_px in [0, 1.5)"``."""
-    unit = DESCRIPTORS.get(st["descriptor"], ("", ""))[0]
-    lo, hi = st["low"], st["high"]
-    lo_open = lo is None or not np.isfinite(lo)
-    hi_open = hi is None or not np.isfinite(hi)
-    if lo_open and hi_open:
-        return f"{st['descriptor']} (all)"
-    if lo_open:
-        return f"{st['descriptor']} < {hi:.3g} {unit}".strip()
-    if hi_open:
-        return f"{st['descriptor']} >= {lo:.3g} {unit}".strip()
-    return f"{st['descriptor']} in [{lo:.3g}, {hi:.3g}) {unit}".strip()
+    """Words for a stratum (``templates/mismatch.txt``, ``stratum``):
+    ``"edge_distance_px in [0, 1.5) px"``."""
+    return phrase("stratum", stratum_facts(st))
+
+
+def stratum_facts(st: dict[str, Any]) -> dict[str, Any]:
+    """What a stratum's words say: its ``descriptor``, the descriptor's ``unit`` ("" when not
+    in :data:`.features.DESCRIPTORS`), and the bin's ``low`` and ``high``, None where the bin
+    is open (None, infinite or NaN)."""
+    def bound(value: float | None) -> float | None:
+        return None if value is None or not np.isfinite(value) else value
+
+    return {"descriptor": st["descriptor"],
+            "unit": DESCRIPTORS.get(st["descriptor"], ("", ""))[0],
+            "low": bound(st["low"]), "high": bound(st["high"])}

@@ -1,15 +1,21 @@
 """Predict the expected ToF measurement of a real frame from its reference, fast enough to fit.
 
 The prediction is the simulator's :func:`~tof_mpd_ros.sim.tof.render_from_reference` with the
-noise switched off (the expected value), run stage by stage through the same effect modules
-(:data:`~tof_mpd_ros.sim.tof.EFFECTS`) so that the fitter can re-render a frame thousands of
-times: the state before every effect is cached for the base configuration, and a candidate
-configuration resumes from the first effect in which it differs. The one-bounce indirect phasor
-(the expensive part) is computed once per frame at unit gain and scaled by the multipath gain;
-geometry effects (hand-eye, time offset) move the direct surface but keep that indirect phasor,
-which varies slowly with sub-pixel pose changes. Those moves use :func:`moved_direct_phasor`, a
-sub-pixel (bilinear, phasor-domain) version of the simulator's warp: the simulator's
-nearest-pixel warp is piecewise constant in sub-pixel rotations, which a fitter cannot descend.
+noise switched off (the expected value): :class:`FramePredictor` walks the simulator's own step
+list (:func:`~tof_mpd_ros.sim.tof.pipeline_steps`, less the ``stochastic`` effects) and runs each
+step through the simulator's own code (:func:`~tof_mpd_ros.sim.tof.run_step`), so that an effect
+registered with the simulator is predicted too. It re-renders a frame thousands of times: the
+state before every step is cached for the base configuration, and a candidate configuration
+resumes from the first effect in which it differs. Three steps are its own:
+
+* camera moves (:class:`~tof_mpd_ros.sim.tof.CameraMoveEffect`: hand-eye, time offset) move the
+  direct surface sub-pixel exactly at the direct-return step (:func:`moved_direct_phasor`, a
+  bilinear, phasor-domain version of the simulator's warp: the simulator's nearest-pixel warp is
+  piecewise constant in sub-pixel rotations, which a fitter cannot descend), and keep the
+  indirect light, which varies slowly with sub-pixel pose changes;
+* ``multipath``: the one-bounce indirect phasor (the expensive part) is computed once per frame at
+  unit gain and added through the effect's own ``add_indirect``;
+* ``lens_scatter``: the effect's own equation with an FFT blur for wide PSFs.
 
 The albedo the reference lacks is inferred from the real amplitude by inverting the direct
 return (``a = P ρ cosθ / r²``), so amplitude-dependent physics (noise, amplitude bias,
@@ -19,39 +25,38 @@ interreflection strength) is evaluated at the real brightness.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from functools import lru_cache
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import ndimage, signal
-from scipy.spatial.transform import Rotation
 
-from ..camera import Intrinsics
 from ..errors import MismatchError
 from ..frame import ToFFrame
+from ..pose import matrix_to_rotvec, rotvec_to_matrix
 from ..sim.surface import SurfaceImage
-from ..sim.tof import EFFECTS, CameraMotion, ToFConfig
-from ..sim.tof.context import RenderContext
-from ..sim.tof.effects.mixed_pixels import blur_phasor, light_footprint_sigma_px
-from ..sim.tof.effects.noise import phasor_noise_std
-from ..sim.tof.effects.phase_wrapping import PhaseWrapping
-from ..sim.tof.effects.pixel_offset import offset_pattern
-from ..sim.tof.phasor import direct_phasor, phase_per_mm
-from ..sim.tof.reference import surface_from_reference
-from ..sim.tof.reference_world import world_from_surface
-from ..sim.tof.transport import indirect_phasor
-from ..sim.tof.warp import rotation_matrix
-
-#: pipeline of the reference render in order; ``None`` marks the direct-return step
-PIPELINE: tuple[str | None, ...] = (
-    "hand_eye", "time_offset", None, "mixed_pixels", "multipath", "subsurface", "lens_scatter",
-    "phase_wrapping", "wiggling", "amplitude_bias", "pixel_offset", "temperature_drift",
+from ..sim.tof import (
+    DIRECT,
+    EFFECTS,
+    Action,
+    CameraMotion,
+    CameraMoveEffect,
+    RenderContext,
+    Step,
+    ToFConfig,
+    direct_phasor,
+    frame_context,
+    phase_per_mm,
+    phasor_noise_std,
+    pipeline_steps,
+    run_step,
+    surface_from_reference,
 )
-#: effects that only act on the noise, never on the expected value
-NOISE_EFFECTS = ("noise", "noise_model")
+
 #: albedo bounds of the inferred albedo (a black or mirror-like surface is not Lambertian)
 ALBEDO_RANGE = (0.02, 1.0)
+#: narrowest scatter PSF (px) blurred by FFT; narrower ones use the simulator's own blur
+FFT_MIN_SIGMA_PX = 6.0
 
 
 @dataclass
@@ -72,11 +77,15 @@ class Prediction:
 
 @dataclass
 class _State:
+    """What the steps have made so far: the surface, the camera moves still to apply at the
+    direct return, the phasor, the pixels the moved surface covers, range and amplitude."""
+
     surface: SurfaceImage
+    moves: tuple[tuple[np.ndarray, np.ndarray], ...] = ()
     z: np.ndarray | None = None
+    hit: np.ndarray | None = None
     range_mm: np.ndarray | None = None
     amplitude: np.ndarray | None = None
-    extra: dict[str, Any] = field(default_factory=dict)
 
 
 def fill_holes(range_mm: np.ndarray, max_iterations: int = 64,
@@ -181,7 +190,7 @@ def moved_direct_phasor(surface: SurfaceImage, rotvec: np.ndarray, translation_m
     Returns:
         (H, W) complex128 direct phasor and (H, W) bool "mostly covered by a surface".
     """
-    rot = rotation_matrix(np.asarray(rotvec, dtype=np.float64))
+    rot = rotvec_to_matrix(np.asarray(rotvec, dtype=np.float64))
     t = np.asarray(translation_mm, dtype=np.float64)
     k = surface.intrinsics
     h, w = k.shape
@@ -212,24 +221,6 @@ def moved_direct_phasor(surface: SurfaceImage, rotvec: np.ndarray, translation_m
     return z, cover >= 0.5
 
 
-@lru_cache(maxsize=8)
-def _unit_pattern(intrinsics: Intrinsics, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """The simulator's pixel-offset pattern at unit spread: (H, W) offsets and gains."""
-    off, gain = offset_pattern(intrinsics, int(seed), 0.0, 1.0, 1.0)
-    off.flags.writeable = False
-    gain.flags.writeable = False
-    return off, gain
-
-
-def pixel_offset_fast(range_mm: np.ndarray, params: Any, intrinsics: Intrinsics) -> np.ndarray:
-    """``pixel_offset`` with the simulator's pattern cached: the pattern is linear in the
-    parameters (mean + std · unit offset, gain_std · unit gain), and drawing it is the costly
-    part when the fitter calls it thousands of times."""
-    off, gain = _unit_pattern(intrinsics, int(params["seed"]))
-    offset = float(params["offset_mean_mm"]) + float(params["offset_std_mm"]) * off
-    return offset + (1.0 + float(params["gain_std"]) * gain) * range_mm
-
-
 def _gaussian_constant(img: np.ndarray, sigma: float) -> np.ndarray:
     """``ndimage.gaussian_filter(img, sigma, mode="constant", truncate=3)`` by FFT along each
     axis (same kernel, zero padding): wide PSFs cost O(N log N) instead of O(N σ)."""
@@ -241,14 +232,10 @@ def _gaussian_constant(img: np.ndarray, sigma: float) -> np.ndarray:
     return signal.fftconvolve(out, kernel[None, :], mode="same", axes=1)
 
 
-def lens_scatter_fast(z: np.ndarray, params: Any) -> np.ndarray:
-    """``lens_scatter`` (same equation as the simulator's effect) with FFT blurs."""
-    frac = float(params["fraction"])
-    sigma = float(params["sigma_px"])
-    if sigma < 6.0:
-        return EFFECTS["lens_scatter"].apply(z, params, None)  # type: ignore[arg-type]
-    glare = _gaussian_constant(z.real, sigma) + 1j * _gaussian_constant(z.imag, sigma)
-    return (1.0 - frac) * z + frac * glare
+def fft_glare(z: np.ndarray, sigma: float) -> np.ndarray:
+    """The simulator's scatter glare ``G_σ ∗ Z`` of an (H, W) complex128 image (zero padding,
+    truncated at 3σ) by FFT: the same kernel, equal up to float rounding."""
+    return _gaussian_constant(z.real, sigma) + 1j * _gaussian_constant(z.imag, sigma)
 
 
 def _compose(moves: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
@@ -257,23 +244,8 @@ def _compose(moves: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np.ndarray, np
     rot, t = np.eye(3), np.zeros(3)
     for rv, tr in moves:
         t = t + rot @ np.asarray(tr, dtype=np.float64)
-        rot = rot @ rotation_matrix(rv)
-    return Rotation.from_matrix(rot).as_rotvec(), t
-
-
-def _geometry_move(name: str, params: Any, motion: CameraMotion | None
-                   ) -> tuple[np.ndarray, np.ndarray] | None:
-    """(rotvec rad, translation mm) of a geometry effect, or None when it does not move."""
-    if name == "hand_eye":
-        rot = 1e-3 * np.array([params["rx_mrad"], params["ry_mrad"], params["rz_mrad"]], float)
-        return rot, np.array([params["tx_mm"], params["ty_mm"], params["tz_mm"]], float)
-    if name == "time_offset":
-        if motion is None:
-            return None
-        dt = 1e-3 * float(params["offset_ms"])
-        return (np.asarray(motion.angular_rad_s, float) * dt,
-                np.asarray(motion.linear_mm_s, float) * dt)
-    return None
+        rot = rot @ rotvec_to_matrix(rv)
+    return matrix_to_rotvec(rot), t
 
 
 def noise_std_mm(amplitude: np.ndarray, config: ToFConfig) -> np.ndarray:
@@ -286,16 +258,16 @@ def noise_std_mm(amplitude: np.ndarray, config: ToFConfig) -> np.ndarray:
     Returns:
         (H, W) float64 std in mm (valid for a ≫ σ; capped at a quarter of the ambiguity range).
     """
-    p = config.params("noise")
+    p = config.effect_params("noise")
     a = np.maximum(np.asarray(amplitude, dtype=np.float64), 1e-6)
     jitter = 0.0
     if config.enabled("noise_model"):
-        q = config.params("noise_model")
-        sigma = phasor_noise_std(a, p["read_std"], p["shot_gain"], p["ambient"],
-                                 scale=q["scale"], exponent=q["exponent"])
-        jitter = float(q["jitter_mm"])
+        q = config.effect_params("noise_model")
+        sigma = phasor_noise_std(a, p.read_std, p.shot_gain, p.ambient, scale=q.scale,
+                                 exponent=q.exponent)
+        jitter = float(q.jitter_mm)
     elif config.enabled("noise"):
-        sigma = phasor_noise_std(a, p["read_std"], p["shot_gain"], p["ambient"])
+        sigma = phasor_noise_std(a, p.read_std, p.shot_gain, p.ambient)
     else:
         sigma = np.zeros_like(a)
     k = phase_per_mm(config.mod_freq_hz)
@@ -313,11 +285,18 @@ class FramePredictor:
         motion: camera velocity during the frame (time offset), or None.
         albedo: (H, W) float albedo in [0, 1], or None to infer it from the real amplitude.
         indirect_cache: shared cache of indirect phasors (see :meth:`rebased`).
+        surface: the surface of the frame's reference with ``albedo`` (see :meth:`rebased`), or
+            None to build it (its normals are a plane fit per pixel, the costly part).
+
+    Attributes:
+        steps: the simulator's pipeline steps the prediction walks, in order: every step but
+            the ``stochastic`` effects' (noise acts on the spread, not on the expected value).
     """
 
     def __init__(self, frame: ToFFrame, base: ToFConfig, *, frame_index: int = 0,
                  motion: CameraMotion | None = None, albedo: np.ndarray | None = None,
-                 indirect_cache: dict[tuple, np.ndarray] | None = None) -> None:
+                 indirect_cache: dict[tuple, np.ndarray] | None = None,
+                 surface: SurfaceImage | None = None) -> None:
         if frame.reference_mm is None:
             raise MismatchError("the predictor needs the frame's reference range image")
         self.frame = frame
@@ -327,9 +306,15 @@ class FramePredictor:
         # holes are filled for light transport and mixing, and masked again at the end
         self.reference_valid = np.isfinite(frame.reference_mm)
         self.surface = surface_from_reference(fill_holes(frame.reference_mm), frame.intrinsics,
-                                              self.albedo)
+                                              self.albedo) if surface is None else surface
         self._indirect = {} if indirect_cache is None else indirect_cache
         self.base = base
+        self.steps: tuple[Step, ...] = tuple(
+            s for s in pipeline_steps() if s.effect is None or not s.effect.stochastic)
+        #: the steps computed the predictor's own way when their effect is on
+        self._own_steps: dict[str, Callable[[Step, ToFConfig, np.ndarray, RenderContext],
+                                            np.ndarray]] = {
+            "multipath": self._multipath, "lens_scatter": self._lens_scatter}
         self._checkpoints: dict[int, _State] = {}
         self._last: tuple[ToFConfig, Prediction] | None = None
         self._base_result = self._run(base, 0, _State(self.surface), record=True)
@@ -346,117 +331,115 @@ class FramePredictor:
         if start is None:
             rng_mm, amp = self._base_result.range_mm, self._base_result.amplitude
             return Prediction(rng_mm, amp, self._noise(amp, config))
-        state = self._checkpoints[start]
-        copy = _State(state.surface, state.z, state.range_mm, state.amplitude,
-                      dict(state.extra))
-        result = self._run(config, start, copy, record=False)
+        result = self._run(config, start, replace(self._checkpoints[start]), record=False)
         self._last = (config, result)
         return result
 
     def rebased(self, base: ToFConfig) -> FramePredictor:
-        """The same frame predicted around another base configuration (albedo and the indirect
-        phasor are reused)."""
+        """The same frame predicted around another base configuration (albedo, the surface and
+        its normals, and the indirect phasor are reused: they depend on the frame only)."""
         return FramePredictor(self.frame, base, frame_index=self.frame_index, motion=self.motion,
-                              albedo=self.albedo, indirect_cache=self._indirect)
+                              albedo=self.albedo, indirect_cache=self._indirect,
+                              surface=self.surface)
 
     def indirect(self, config: ToFConfig) -> np.ndarray:
         """(H, W) complex128 unit-gain indirect phasor of the reference surface (its world:
         the reference plus the support plane extended across the light's cone)."""
-        p = config.params("multipath")
-        key = (tuple(sorted((k, v) for k, v in p.items() if k != "gain")),
-               config.mod_freq_hz, config.light_power)
+        multipath = EFFECTS["multipath"]
+        p = config.effect_params(multipath.name)
+        key = (replace(p, gain=1.0), config.mod_freq_hz, config.light_power)
         if key not in self._indirect:
-            world = world_from_surface(self.surface, leaf_mm=float(p["leaf_mm"]),
-                                       cutoff_deg=float(p["cutoff_deg"]),
-                                       beam_deg=float(p["beam_deg"]))
-            self._indirect[key] = indirect_phasor(
-                self.surface, world, mod_freq_hz=config.mod_freq_hz,
-                light_power=config.light_power, bounces=int(p["bounces"]),
-                open_ratio=float(p["open_ratio"]), bounce_patch_mm=float(p["bounce_patch_mm"]))
+            self._indirect[key] = multipath.unit_indirect(
+                self.surface, multipath.surface_world(self.surface, p), p, config.mod_freq_hz,
+                config.light_power)
         return self._indirect[key]
 
     # -- internals ----------------------------------------------------------------------------
 
     def _first_difference(self, config: ToFConfig) -> int | None:
-        """Pipeline position of the first effect whose switch or parameters differ from base."""
+        """Index in :attr:`steps` of the first effect whose switch or parameters differ from
+        the base configuration's."""
         if (config.mod_freq_hz, config.light_power) != (self.base.mod_freq_hz,
                                                          self.base.light_power):
             return 0
-        for i, name in enumerate(PIPELINE):
-            if name is not None and config.effects[name] != self.base.effects[name]:
+        for i, step in enumerate(self.steps):
+            if step.effect is not None and config.effects[step.name] != self.base.effects[
+                    step.name]:
                 return i
         return None
 
     def _context(self, config: ToFConfig, surface: SurfaceImage) -> RenderContext:
-        return RenderContext(intrinsics=self.frame.intrinsics, surface=surface, samples=surface,
-                             supersample=1, mod_freq_hz=config.mod_freq_hz,
-                             light_power=config.light_power, rng=np.random.default_rng(0),
-                             frame_index=self.frame_index, motion=self.motion,
-                             true_range_mm=surface.range_mm,
-                             noise_params=config.params("noise"))
+        ctx = frame_context(config, self.frame.intrinsics, surface,
+                            rng=np.random.default_rng(0), frame_index=self.frame_index,
+                            motion=self.motion)
+        ctx.true_range_mm = surface.range_mm
+        return ctx
 
     def _run(self, config: ToFConfig, start: int, state: _State, *, record: bool) -> Prediction:
-        effects = config.effects
         ctx = self._context(config, state.surface)
         ctx.amplitude = state.amplitude
-        for i in range(start, len(PIPELINE)):
+        for i in range(start, len(self.steps)):
             if record:
-                self._checkpoints[i] = _State(state.surface, state.z, state.range_mm,
-                                              state.amplitude, dict(state.extra))
-            name = PIPELINE[i]
-            self._step(name, config, state, ctx, effects)
-        hit = state.extra.get("hit", state.surface.valid)
+                self._checkpoints[i] = replace(state)
+            self._step(self.steps[i], config, state, ctx)
+        hit = state.surface.valid if state.hit is None else state.hit
         valid = (hit & np.isfinite(state.range_mm) & self.reference_valid
                  & (state.amplitude >= config.min_amplitude))
         rng_mm = np.where(valid, state.range_mm, np.nan)
         amp = np.where(valid, state.amplitude, np.nan)
         return Prediction(rng_mm, amp, self._noise(amp, config))
 
-    def _step(self, name: str | None, config: ToFConfig, state: _State, ctx: RenderContext,
-              effects: Any) -> None:
-        """Apply one pipeline step to ``state`` (mirrors ``sim.tof.render._render``, s = 1)."""
-        if name is None:  # direct return of the (possibly moved) surface
-            s = state.surface
-            moves = state.extra.get("moves")
-            if moves:
-                state.z, hit = moved_direct_phasor(s, *_compose(moves), config.mod_freq_hz,
-                                                   config.light_power)
-                state.extra = {**state.extra, "hit": hit}
+    def _step(self, step: Step, config: ToFConfig, state: _State, ctx: RenderContext) -> None:
+        """Apply one pipeline step to ``state``: the simulator's own step, except the direct
+        return, camera moves and the steps in ``_own_steps`` (see the module docstring)."""
+        if step.stage == DIRECT:
+            self._direct(config, state)
+        elif step.stage == "geometry":
+            if isinstance(step.effect, CameraMoveEffect) and \
+                    step.action(config) is Action.APPLY:
+                move = step.effect.camera_move(step.params(config), ctx)
+                if move is not None:  # applied at the direct return
+                    state.moves = (*state.moves, move)
             else:
-                state.z = direct_phasor(s.range_mm, s.normal, s.albedo,
-                                        s.intrinsics.ray_directions(), config.mod_freq_hz,
-                                        config.light_power)
-            return
-        cfg = effects[name]
-        stage = EFFECTS[name].stage
-        if stage == "geometry":
-            move = _geometry_move(name, cfg.params, self.motion) if cfg.enabled else None
-            if move is not None:
-                state.extra = {**state.extra, "moves": [*state.extra.get("moves", []), move]}
+                state.surface = run_step(step, state.surface, config, ctx)
                 ctx.surface = ctx.samples = state.surface
                 ctx.true_range_mm = state.surface.range_mm
-        elif name == "multipath":
-            if cfg.enabled:
-                # mixed over the footprint as the simulator's multipath effect does
-                indirect = blur_phasor(self.indirect(config), light_footprint_sigma_px(config))
-                state.z = state.z + float(cfg.params["gain"]) * indirect
-        elif name == "lens_scatter":
-            if cfg.enabled:
-                state.z = lens_scatter_fast(state.z, cfg.params)
-        elif name == "pixel_offset":
-            if cfg.enabled:
-                state.range_mm = pixel_offset_fast(state.range_mm, cfg.params,
-                                                   self.frame.intrinsics)
-        elif stage in ("footprint", "phasor"):
-            if cfg.enabled:
-                state.z = EFFECTS[name].apply(state.z, cfg.params, ctx)
-        elif stage == "readout":
+        elif step.stage in ("footprint", "phasor"):
+            own = self._own_steps.get(step.name)
+            state.z = (own(step, config, state.z, ctx)
+                       if own is not None and step.action(config) is Action.APPLY
+                       else run_step(step, state.z, config, ctx))
+        elif step.stage == "readout":
             state.amplitude = np.abs(state.z)
             ctx.amplitude = state.amplitude
-            state.range_mm = (EFFECTS[name].apply(state.z, cfg.params, ctx) if cfg.enabled
-                              else PhaseWrapping.unwrapped(state.z, ctx))
-        elif cfg.enabled:  # range stage
-            state.range_mm = EFFECTS[name].apply(state.range_mm, cfg.params, ctx)
+            state.range_mm = run_step(step, state.z, config, ctx)
+        else:  # range
+            state.range_mm = run_step(step, state.range_mm, config, ctx)
+
+    @staticmethod
+    def _direct(config: ToFConfig, state: _State) -> None:
+        """The direct return of the surface, seen from the moved camera if it moved."""
+        s = state.surface
+        if state.moves:
+            state.z, state.hit = moved_direct_phasor(s, *_compose(list(state.moves)),
+                                                     config.mod_freq_hz, config.light_power)
+        else:
+            state.z = direct_phasor(s.range_mm, s.normal, s.albedo, s.intrinsics.ray_directions(),
+                                    config.mod_freq_hz, config.light_power)
+
+    def _multipath(self, step: Step, config: ToFConfig, z: np.ndarray,
+                   ctx: RenderContext) -> np.ndarray:
+        """``multipath`` from the cached unit-gain indirect phasor of the reference surface."""
+        return step.effect.add_indirect(z, self.indirect(config), step.params(config), ctx)
+
+    @staticmethod
+    def _lens_scatter(step: Step, config: ToFConfig, z: np.ndarray,
+                      ctx: RenderContext) -> np.ndarray:
+        """``lens_scatter`` with :func:`fft_glare` for PSFs of at least ``FFT_MIN_SIGMA_PX``."""
+        params = step.params(config)
+        if float(params.sigma_px) < FFT_MIN_SIGMA_PX:
+            return step.effect.apply(z, params, ctx)
+        return step.effect.scatter(z, params, fft_glare)
 
     @staticmethod
     def _noise(amplitude: np.ndarray, config: ToFConfig) -> np.ndarray:

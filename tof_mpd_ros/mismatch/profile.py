@@ -30,6 +30,7 @@ import numpy as np
 from ..frame import ToFFrame
 from ..sim.tof import ToFConfig
 from .predict import raw_albedo
+from .wording import phrase
 
 #: effects every camera has its own values of (fitted first, reported as the camera's profile)
 PROFILE_EFFECTS: tuple[str, ...] = ("noise_model", "pixel_offset", "wiggling", "amplitude_bias")
@@ -61,13 +62,12 @@ CAMERA_WINDOWS: dict[str, tuple[str, float, float]] = {
                     ALBEDO_DOUBT[1] ** ALBEDO_EXPONENT),
     "mixed_pixels": ("psf_sigma_px", 0.0, LENS_PSF_MAX_PX),
 }
-#: why a value inside the window is the camera's, in words
-CAMERA_WINDOW_WHY: dict[str, str] = {
-    ALBEDO_EFFECT: (f"the grey world's albedo may be off by {ALBEDO_DOUBT[0]:g}-"
-                    f"{ALBEDO_DOUBT[1]:g}x and interreflection scales as "
-                    f"albedo^{ALBEDO_EXPONENT:g}"),
-    "mixed_pixels": (f"a lens focused on the scene blurs by up to {LENS_PSF_MAX_PX:g} px: "
-                     "the camera's own point spread"),
+#: why a value inside the window is the camera's, as the facts the template words
+#: (``templates/mismatch.txt``, ``camera_window_why``): the albedo's doubt and the exponent of
+#: the interreflection's scaling, the widest blur of a focused lens
+CAMERA_WINDOW_REASONS: dict[str, dict[str, Any]] = {
+    ALBEDO_EFFECT: {"reason": "albedo", "doubt": ALBEDO_DOUBT, "exponent": ALBEDO_EXPONENT},
+    "mixed_pixels": {"reason": "lens", "max_px": LENS_PSF_MAX_PX},
 }
 #: inferred albedo is implausible for a config's amplitude units when its median leaves this
 #: range or more than ``BRIGHT_SHARE`` of the pixels come out brighter than a white diffuser
@@ -185,45 +185,52 @@ def albedo_from_interreflection(facts: dict[str, Any], gain: float) -> dict[str,
 def describe_profile(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any],
                      effects: Sequence[str]) -> list[str]:
     """The camera's profile in words, relative to the nominal cell ("noise 3.6× lower than
-    nominal, offset −4.1 mm")."""
-    words = [f"modulation frequency {facts['mod_freq_hz'] / 1e6:.4g} MHz"
-             + (" (from the recording)" if facts.get("mod_freq_from_recording") else "")]
+    nominal", "offset -4.1 mm (nominal +4.0), ..."): one phrase per item of
+    :func:`profile_items` (``templates/mismatch.txt``, ``profile_item``); an effect the
+    template has no words for gives none."""
+    phrases = (phrase("profile_item", item)
+               for item in profile_items(nominal, fitted, facts, effects))
+    return [p for p in phrases if p]
+
+
+def profile_items(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any],
+                  effects: Sequence[str]) -> list[dict[str, Any]]:
+    """What the camera's profile says, as data (``facts`` from :func:`adopt_recording` and
+    :func:`albedo_from_interreflection`), one dict per item, ``kind`` first:
+
+    * ``"frequency"``: ``mod_freq_hz``, ``from_recording``;
+    * ``"units"`` (only when the amplitude units are not the simulator's): ``scale``,
+      ``grey_world`` (the assumed median albedo);
+    * ``"albedo"`` (for :data:`ALBEDO_EFFECT` when its gain was read as the scene's albedo):
+      ``gain``, ``albedo_scale``, ``units_scale``, ``grey_world``;
+    * every other effect of ``effects`` by name: its ``fitted`` and ``nominal`` parameters
+      (the numeric ones, as floats).
+    """
+    items: list[dict[str, Any]] = [{"kind": "frequency", "mod_freq_hz": facts["mod_freq_hz"],
+                                    "from_recording": bool(facts.get("mod_freq_from_recording"))}]
     k = facts.get("amplitude_scale", 1.0)
     if k != 1.0:
-        words.append(f"amplitude units {k:.3g}× the simulator's (median albedo taken as "
-                     f"{GREY_WORLD_ALBEDO}: a grey world; albedo and units are degenerate)")
+        items.append({"kind": "units", "scale": k, "grey_world": GREY_WORLD_ALBEDO})
     for name in effects:
-        p = fitted.params(name)
-        if name == "noise_model":
-            s = float(p["scale"])
-            level = (f"{s:.2g}× the nominal noise" if s >= 1 else
-                     f"noise {1 / s:.2g}× lower than nominal")
-            words.append(f"{level} (amplitude exponent {float(p['exponent']):.2g}, "
-                         f"jitter {float(p['jitter_mm']):.2g} mm)")
-        elif name == "pixel_offset":
-            words.append(f"offset {float(p['offset_mean_mm']):+.1f} mm (nominal "
-                         f"{float(nominal.params(name)['offset_mean_mm']):+.1f}), pixel spread "
-                         f"{float(p['offset_std_mm']):.1f} mm, gain spread "
-                         f"{100 * float(p['gain_std']):.2g} %")
-        elif name == "wiggling":
-            words.append(f"wiggle {float(p['a1_mm']):.1f} mm at 4φ, {float(p['a2_mm']):.1f} mm "
-                         "at 8φ")
-        elif name == "amplitude_bias":
-            words.append(f"amplitude bias {float(p['bias_mm']):+.1f} mm (exponent "
-                         f"{float(p['exponent']):.2g})")
-        elif name == "mixed_pixels":
-            words.append(f"lens blur {float(p['psf_sigma_px']):.2g} px (nominal "
-                         f"{float(nominal.params(name)['psf_sigma_px']):.2g})")
-        elif name == ALBEDO_EFFECT and "albedo_scale" in facts:
-            words.append(f"interreflection {float(p['gain']):.2g}× the grey world's: the "
-                         f"scene's albedo about {facts['albedo_scale']:.2g}× "
-                         f"{GREY_WORLD_ALBEDO}, amplitude units about "
-                         f"{facts['amplitude_scale_from_interreflection']:.3g}× the simulator's")
-    return words
+        p = _numbers(fitted.params(name))
+        if name == ALBEDO_EFFECT and "albedo_scale" in facts:
+            items.append({"kind": "albedo", "gain": p["gain"],
+                          "albedo_scale": facts["albedo_scale"],
+                          "units_scale": facts["amplitude_scale_from_interreflection"],
+                          "grey_world": GREY_WORLD_ALBEDO})
+        else:
+            items.append({"kind": name, "fitted": p, "nominal": _numbers(nominal.params(name))})
+    return items
+
+
+def _numbers(params: dict[str, Any]) -> dict[str, float]:
+    """The numeric parameters of an effect as floats (tuples, strings and flags left out)."""
+    return {k: float(v) for k, v in params.items()
+            if isinstance(v, (int, float, np.number)) and not isinstance(v, bool)}
 
 
 __all__ = ["ALBEDO_DOUBT", "ALBEDO_EFFECT", "ALBEDO_EXPONENT", "CAMERA_WINDOWS",
-           "CAMERA_WINDOW_WHY", "GREY_WORLD_ALBEDO", "LENS_PSF_MAX_PX", "PROFILE_EFFECTS",
+           "CAMERA_WINDOW_REASONS", "GREY_WORLD_ALBEDO", "LENS_PSF_MAX_PX", "PROFILE_EFFECTS",
            "SCENE_EFFECTS", "adopt_recording", "albedo_from_interreflection",
-           "describe_profile", "scene_albedo", "units_plausible", "with_amplitude_units",
-           "with_scene_distance"]
+           "describe_profile", "profile_items", "scene_albedo", "units_plausible",
+           "with_amplitude_units", "with_scene_distance"]

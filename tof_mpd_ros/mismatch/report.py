@@ -1,9 +1,9 @@
 """Write an :class:`~.analyse.Analysis`: ``report.json``, the fitted simulator config, PNG plots
-(matplotlib Agg) and an ``index.html`` that embeds them with the tables."""
+(matplotlib Agg) and an ``index.html`` that embeds them with the tables (the package's report
+template ``templates/mismatch.html``)."""
 
 from __future__ import annotations
 
-import html
 import json
 import math
 from pathlib import Path
@@ -12,25 +12,28 @@ from typing import Any
 import numpy as np
 
 from ..errors import MismatchError
+from ..templates import render
 from .analysis import Analysis
 from .locate import describe_stratum
+from .wording import text
 
 REPORT_JSON = "report.json"
 CONFIG_JSON = "fitted_config.json"
 
 
 def to_json(analysis: Analysis) -> dict[str, Any]:
-    """The JSON document of a report (SPEC §5 fields first)."""
+    """The JSON document of a report: the answer first (selected effects, verdict), then the
+    evidence (docs/mismatch.md lists the fields). Its sentences (verdict, the profile's
+    summary, evidence, reasons) come from ``templates/mismatch.txt``."""
     m = analysis.metrics
     return _clean({
         "selected": analysis.selected,
-        "verdict": (", ".join(analysis.selected) if analysis.selected
-                    else "none: no significant mismatch"),
+        "verdict": text("verdict", analysis.selected),
         "workflow": analysis.workflow,
         "camera_profile": {"effects": analysis.profile,
                            "parameters": {e: analysis.parameters[e] for e in analysis.profile},
                            "facts": analysis.profile_facts,
-                           "summary": "; ".join(analysis.profile_words)},
+                           "summary": text("profile_summary", analysis.profile_words)},
         "unexplained": analysis.unexplained,
         "ranking": analysis.ranking(),
         "parameters": analysis.parameters,
@@ -85,11 +88,23 @@ def write_report(analysis: Analysis, out_dir: str | Path) -> dict[str, Path]:
 
 
 def _plots(analysis: Analysis, out: Path) -> dict[str, Path]:
+    """The PNGs of a report: name -> path (``histogram`` always, ``images`` and ``ranking``
+    when there is something to show)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    paths = {}
+    paths = {"histogram": _residual_histogram(plt, analysis, out / "residual_histogram.png")}
+    if analysis.residual_before:
+        paths["images"] = _residual_images(plt, analysis, out / "residual_images.png")
+    first = [r for r in analysis.ranking() if r["round"] == 1]
+    if first:
+        paths["ranking"] = _ranking_bars(plt, first, out / "ranking.png")
+    return paths
+
+
+def _residual_histogram(plt: Any, analysis: Analysis, path: Path) -> Path:
+    """Held-out residuals before and after the fit, pooled over frames (mm)."""
     rb = np.concatenate([r.ravel() for r in analysis.residual_before]) \
         if analysis.residual_before else np.array([])
     ra = np.concatenate([r.ravel() for r in analysis.residual_after]) \
@@ -105,84 +120,43 @@ def _plots(analysis: Analysis, out: Path) -> dict[str, Path]:
     ax.set_xlabel("held-out residual real − predicted range (mm)")
     ax.set_ylabel("density")
     fig.tight_layout()
-    paths["histogram"] = out / "residual_histogram.png"
-    fig.savefig(paths["histogram"], dpi=100)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
+    return path
 
+
+def _residual_images(plt: Any, analysis: Analysis, path: Path) -> Path:
+    """The residual maps (mm) of up to three held-out frames, before (top) and after."""
     n = min(len(analysis.residual_before), 3)
-    if n:
-        fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
-        lim = float(np.nanpercentile(np.abs(np.stack(analysis.residual_before[:n])), 95)) or 1.0
-        for j in range(n):
-            for row, (maps, title) in enumerate(((analysis.residual_before, "before"),
-                                                 (analysis.residual_after, "after"))):
-                im = axes[row, j].imshow(maps[j], cmap="coolwarm", vmin=-lim, vmax=lim)
-                axes[row, j].set_title(f"frame {analysis.test_frames[j]} {title}", fontsize=9)
-                axes[row, j].axis("off")
-        fig.colorbar(im, ax=axes, shrink=0.8, label="residual (mm)")
-        paths["images"] = out / "residual_images.png"
-        fig.savefig(paths["images"], dpi=100)
-        plt.close(fig)
-
-    rows = analysis.ranking()
-    first = [r for r in rows if r["round"] == 1]
-    if first:
-        fig, ax = plt.subplots(figsize=(6, 3.5))
-        names = [r["effect"] for r in first][::-1]
-        ax.barh(names, [max(r["score"], -20.0) for r in first][::-1])
-        ax.axvline(0.0, color="k", lw=0.8)
-        ax.set_xlabel("score (millinats / held-out pixel, after penalty)")
-        fig.tight_layout()
-        paths["ranking"] = out / "ranking.png"
-        fig.savefig(paths["ranking"], dpi=100)
-        plt.close(fig)
-    return paths
+    fig, axes = plt.subplots(2, n, figsize=(3.2 * n, 5.2), squeeze=False)
+    lim = float(np.nanpercentile(np.abs(np.stack(analysis.residual_before[:n])), 95)) or 1.0
+    for j in range(n):
+        for row, (maps, title) in enumerate(((analysis.residual_before, "before"),
+                                             (analysis.residual_after, "after"))):
+            im = axes[row, j].imshow(maps[j], cmap="coolwarm", vmin=-lim, vmax=lim)
+            axes[row, j].set_title(f"frame {analysis.test_frames[j]} {title}", fontsize=9)
+            axes[row, j].axis("off")
+    fig.colorbar(im, ax=axes, shrink=0.8, label="residual (mm)")
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
 
 
-def _table(rows: list[list[Any]], head: list[str]) -> str:
-    th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in r) + "</tr>"
-                   for r in rows)
-    return f"<table><tr>{th}</tr>{body}</table>"
-
-
-def _fmt(v: Any) -> str:
-    return f"{v:.3g}" if isinstance(v, float) else str(v)
+def _ranking_bars(plt: Any, first: list[dict[str, Any]], path: Path) -> Path:
+    """The first round's candidates by score (millinats per held-out pixel, floored at -20)."""
+    fig, ax = plt.subplots(figsize=(6, 3.5))
+    names = [r["effect"] for r in first][::-1]
+    ax.barh(names, [max(r["score"], -20.0) for r in first][::-1])
+    ax.axvline(0.0, color="k", lw=0.8)
+    ax.set_xlabel("score (millinats / held-out pixel, after penalty)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path
 
 
 def _html(doc: dict[str, Any], paths: dict[str, Path]) -> str:
-    m = doc["metrics"]
-    metric_rows = [[k.replace("_before", ""), _fmt(m.get(k)), _fmt(m.get(k.replace("before",
-                                                                                    "after")))]
-                   for k in m if "before" in k]
-    ranking = [[r["round"], r["effect"], _fmt(r["score"]), _fmt(r["t"]), r["n_params"],
-                r["evidence"]] for r in doc["ranking"]]
-    loc = doc["location"]
-    flagged = [[describe_stratum(s), s["n"], _fmt(s["mean_mm"]), _fmt(s["z"]),
-                _fmt(s["variance_ratio"])] for s in loc.get("flagged", [])]
-    corr = [[k, _fmt(v["residual"]), _fmt(v["abs_z"])]
-            for k, v in loc.get("correlations", {}).items()]
-    imgs = "".join(f'<p><img src="{p.name}" alt="{k}"></p>'
-                   for k, p in paths.items() if p.suffix == ".png")
-    return f"""<!doctype html><html><head><meta charset="utf-8"><title>sim-vs-real mismatch</title>
-<style>body{{font-family:sans-serif;max-width:1100px;margin:auto}}
-table{{border-collapse:collapse}}
-td,th{{border:1px solid #ccc;padding:3px 6px;font-size:13px;vertical-align:top}}</style>
-</head><body>
-<h1>Sim-vs-real mismatch</h1>
-<p><b>Verdict:</b> {html.escape(doc["verdict"])} ({html.escape(doc["workflow"])})</p>
-<p><b>The camera's profile:</b> {html.escape(doc["camera_profile"]["summary"])}</p>
-{"".join(f"<p><b>Not named:</b> {html.escape(u['effect'])} "
-         f"{html.escape(json.dumps(u['parameters_at_edge']) if u['parameters_at_edge'] else '')}"
-         f" — {html.escape(u['why'])}</p>" for u in doc["unexplained"])}
-<p>Fitted parameters: {html.escape(json.dumps(doc["parameters"]))}</p>
-<h2>Held-out residuals before / after</h2>{_table(metric_rows, ["metric", "before", "after"])}
-{imgs}
-<h2>Candidates (score = held-out gain − complexity penalty, millinats/pixel)</h2>
-{_table(ranking, ["round", "effect", "score", "t", "params", "evidence"])}
-<h2>Where the residual exceeds the noise model (before modelling)</h2>
-{_table(flagged, ["stratum", "pixels", "mean (mm)", "z", "var. ratio"])}
-<h3>Rank correlation of the residual with each descriptor</h3>
-{_table(corr, ["descriptor", "residual", "|z|"])}
-<p>Files: {CONFIG_JSON} (simulator config with the fitted effects), {REPORT_JSON}.</p>
-</body></html>"""
+    """The page (templates/mismatch.html) of a report document and the files written."""
+    figures = [(p.name, key) for key, p in paths.items() if p.suffix == ".png"]
+    return render("mismatch.html", title="sim-vs-real mismatch", doc=doc, figures=figures,
+                  describe=describe_stratum, config_json=CONFIG_JSON, report_json=REPORT_JSON)

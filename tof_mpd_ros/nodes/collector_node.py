@@ -15,7 +15,7 @@ the collector again).
 :func:`~tof_mpd_ros.collection.hand_eye_plan.hand_eye_plan_views` over the board at
 ``board_pose``, and each view (ToF depth + amplitude + CameraInfo and the SL camera's intensity
 image + CameraInfo, synchronised, with the TCP pose) is written as
-:mod:`~tof_mpd_ros.collection.hand_eye_io` describes, so ``tof-mpd calibrate hand-eye SESSION``
+:mod:`~tof_mpd_ros.calibration.hand_eye_io` describes, so ``tof-mpd calibrate hand-eye SESSION``
 (or ``SESSION/part_000``) solves it. Such a session resumes like any other (views are matched on
 the TCP pose). With ``hand_eye_file`` (the JSON of ``tof-mpd calibrate hand-eye -o``) the
 calibrated camera-to-flange replaces the ``hand_eye`` parameter, for the plan and in every
@@ -39,23 +39,23 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 
 from ..arm.isolated import IsolatedArm
-from ..arm.ur_pose import pose_vector_to_matrix
-from ..camera import Intrinsics
-from ..collection import session
-from ..collection.hand_eye_detect import CalibrationBoard
-from ..collection.hand_eye_io import (
+from ..calibration.hand_eye_board import CalibrationBoard
+from ..calibration.hand_eye_io import (
     KEY_CALIBRATION_FILE,
     KEY_SL_TO_TOF,
     hand_eye_custom_data,
     load_hand_eye_json,
     write_hand_eye_view,
 )
+from ..camera import Intrinsics
+from ..collection import session
 from ..collection.hand_eye_plan import hand_eye_plan_views
-from ..collection.plan import PlannedView, load_plan, sim_plan
+from ..collection.plan import PlannedView, load_plan
 from ..collection.runner import CaptureFunction, RunResult, WriteFunction, run_plan
 from ..errors import CaptureError, InputError, TofMpdError
 from ..frame import ToFFrame
 from ..image_encoding import amplitude_to_float, depth_to_mm, image_to_array
+from ..pose import pose_vector_to_matrix
 from .cell_topics import CELL_TOPICS, RETIRED_TOPIC_PARAMETERS
 from .parameters import ParameterSpec as P
 from .parameters import declare, refuse_retired_parameters
@@ -354,6 +354,9 @@ class CollectorNode(LifecycleNode):
             board_m = pose_vector_to_matrix(np.asarray(p["board_pose"], dtype=np.float64))
             return hand_eye_plan_views(board_m, p["hand_eye_views"], p["seed"], self.hand_eye_m,
                                        self._board())
+        # The simulator loads only for the plan of a simulated scene, never on a real cell.
+        from ..sim.viewpoints import sim_plan
+
         return sim_plan(p["seed"], p["split"], p["scene"], p["views"], self.hand_eye_m)
 
     def on_activate(self, state: State) -> TransitionCallbackReturn:

@@ -6,13 +6,13 @@ import array as array_mod
 
 import numpy as np
 from geometry_msgs.msg import Pose
-from scipy.spatial.transform import Rotation
 from sensor_msgs.msg import CameraInfo, Image, PointCloud2, PointField
 from std_msgs.msg import Header
 
 from ..camera import Intrinsics
 from ..errors import InputError
 from ..image_encoding import array_to_image_data
+from ..pose import pose_from_quaternion, quaternion_xyzw
 
 
 def stamp_ns(msg) -> int:
@@ -124,18 +124,15 @@ def intrinsics_of(info: CameraInfo) -> Intrinsics:
 
 def pose_matrix(pose: Pose) -> np.ndarray:
     """``geometry_msgs/Pose`` -> (4, 4) float64 transform, metres."""
-    q = pose.orientation
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
-    out[:3, 3] = [pose.position.x, pose.position.y, pose.position.z]
-    return out
+    q, t = pose.orientation, pose.position
+    return pose_from_quaternion([t.x, t.y, t.z], [q.x, q.y, q.z, q.w])
 
 
 def pose_message(matrix: np.ndarray) -> Pose:
     """(4, 4) transform (metres) -> ``geometry_msgs/Pose``."""
     pose = Pose()
     pose.position.x, pose.position.y, pose.position.z = (float(v) for v in matrix[:3, 3])
-    x, y, z, w = Rotation.from_matrix(matrix[:3, :3]).as_quat()
+    x, y, z, w = quaternion_xyzw(matrix)
     pose.orientation.x, pose.orientation.y = float(x), float(y)
     pose.orientation.z, pose.orientation.w = float(z), float(w)
     return pose

@@ -113,15 +113,18 @@ def node_main(prog: str, description: str, node_module: str, node_class: str,
     """Body of a node executable's ``main``: parse ``--help``, then start and spin the node.
 
     The node module (and rclpy) is imported only after argument parsing, so ``--help`` works
-    quickly. A :class:`~tof_mpd_ros.errors.TofMpdError` at start-up (e.g. corrupt weights) is
-    one clear line and exit code 2.
+    quickly, and after the OpenMP wait policy is chosen. A
+    :class:`~tof_mpd_ros.errors.TofMpdError` at start-up (e.g. corrupt weights) is one clear line
+    and exit code 2.
     """
     import importlib
     import sys
 
     from ..errors import TofMpdError
+    from ..machine import set_openmp_wait_policy
     from .launch_args import node_parser, strip_ros_args
 
+    set_openmp_wait_policy()  # before the node module loads numba and torch
     argv = list(sys.argv[1:] if args is None else args)
     node_parser(prog, description).parse_args(strip_ros_args(argv))
     import rclpy

@@ -9,7 +9,7 @@ while it drives the simulated or real arm), the node renders from that pose and 
 stale in between, so every frame stamped after a pose message was rendered at that pose.
 
 With ``target:=hand_eye_board`` the scene is replaced by the hand-eye calibration board lying
-on the table at ``board_pose`` (:mod:`~tof_mpd_ros.collection.hand_eye_sim`): the ToF frames
+on the table at ``board_pose`` (:mod:`~tof_mpd_ros.sim.hand_eye`): the ToF frames
 show the board through the full ToF physics (no structured-light reference), and the SL
 camera's intensity image of the board is published on ``sl/image_raw`` with its CameraInfo,
 rendered from the SL camera pose (``hand_eye`` then ``sl_to_tof``) with the same stamp. Before
@@ -28,19 +28,19 @@ from geometry_msgs.msg import Pose, PoseStamped
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 
-from ..arm.ur_pose import pose_vector_to_matrix
+from ..arm.viewpoints import ViewpointConfig
+from ..calibration.hand_eye_board import CalibrationBoard
 from ..camera import Intrinsics
-from ..collection.hand_eye_detect import CalibrationBoard
 from ..collection.hand_eye_plan import default_sl_intrinsics, hand_eye_plan_views
-from ..collection.hand_eye_sim import render_sl_image, simulate_tof_capture
 from ..frame import ToFFrame
 from ..image_encoding import mm_to_depth
+from ..pose import invert_pose, pose_m_to_mm, pose_vector_to_matrix, rotation_angle
 from ..sim.cell import CameraModel, SimCell
 from ..sim.dataset import scene_rng
-from ..sim.poses import invert_pose, pose_m_to_mm
+from ..sim.hand_eye import render_sl_image, simulate_tof_capture
 from ..sim.scene import make_scene
 from ..sim.structured_light import StructuredLightConfig
-from ..sim.viewpoints import ViewpointConfig, plan_viewpoints
+from ..sim.viewpoints import plan_viewpoints
 from .cell_topics import CELL_TOPICS, RETIRED_TOPIC_PARAMETERS
 from .parameters import ParameterSpec as P
 from .parameters import declare, refuse_retired_parameters
@@ -294,6 +294,5 @@ def _same_pose(a_mm: np.ndarray, b_mm: np.ndarray, tol_mm: float = 0.5,
     """Whether two (4, 4) poses (mm) are within ``tol_mm`` and ``tol_rad`` of each other."""
     if np.linalg.norm(a_mm[:3, 3] - b_mm[:3, 3]) > tol_mm:
         return False
-    cos = (np.trace(a_mm[:3, :3].T @ b_mm[:3, :3]) - 1.0) / 2.0
-    return float(np.arccos(np.clip(cos, -1.0, 1.0))) <= tol_rad
+    return rotation_angle(a_mm, b_mm) <= tol_rad
 

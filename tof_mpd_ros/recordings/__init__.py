@@ -4,7 +4,10 @@ interchange.
 * :class:`RecordingWriter` writes ToF frames (radial range, amplitude, CameraInfo, SL reference,
   arm pose) as CDR messages; :class:`RecordingReader` streams them back as
   :class:`~tof_mpd_ros.frame.ToFFrame` objects, also from files a crashed writer left behind.
-* :func:`load_npz`, :func:`save_npz`, :func:`import_npz`, :func:`export_npz`: SPEC §3 interchange.
+* :func:`load_npz`, :func:`save_npz`, :func:`import_npz`, :func:`export_npz`: the NPZ interchange
+  (docs/recordings.md).
+* :func:`iter_frames`, :func:`count_frames`, :func:`write_frames`: "a recording or an NPZ" file,
+  told apart by :func:`is_npz`.
 
 Nothing here imports rclpy; the ROS message definitions are embedded in :mod:`.msgdefs`.
 """
@@ -12,6 +15,7 @@ Nothing here imports rclpy; the ROS message definitions are embedded in :mod:`.m
 from __future__ import annotations
 
 from .convert import RANGE_ENCODINGS
+from .frame_files import count_frames, is_npz, iter_frames, write_frames
 from .npz import export_npz, import_npz, load_npz, save_npz
 from .reader import RecordedMessage, RecordingInfo, RecordingReader
 from .topics import FrameIds, TopicNames
@@ -19,5 +23,6 @@ from .writer import RecordingWriter
 
 __all__ = [
     "RANGE_ENCODINGS", "FrameIds", "RecordedMessage", "RecordingInfo", "RecordingReader",
-    "RecordingWriter", "TopicNames", "export_npz", "import_npz", "load_npz", "save_npz",
+    "RecordingWriter", "TopicNames", "count_frames", "export_npz", "import_npz", "is_npz",
+    "iter_frames", "load_npz", "save_npz", "write_frames",
 ]

@@ -21,11 +21,11 @@ import logging
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .. import image_encoding
 from ..camera import Intrinsics
 from ..errors import InputError
+from ..pose import pose_from_quaternion, quaternion_xyzw
 from ..validation import check_array
 
 _log = logging.getLogger(__name__)
@@ -177,15 +177,7 @@ def _rigid(matrix: np.ndarray, name: str) -> tuple[list[float], list[float]]:
     m = check_array(name, matrix, ndim=2, shape=(4, 4), dtype_kind="fiu").astype(np.float64)
     if not np.all(np.isfinite(m)):
         raise InputError(f"{name}: transform has non-finite entries")
-    quat = Rotation.from_matrix(m[:3, :3]).as_quat()  # x, y, z, w like ROS
-    return [float(v) for v in m[:3, 3]], [float(v) for v in quat]
-
-
-def _matrix(translation: list[float], quat_xyzw: list[float]) -> np.ndarray:
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_quat(quat_xyzw).as_matrix()
-    out[:3, 3] = translation
-    return out
+    return [float(v) for v in m[:3, 3]], [float(v) for v in quaternion_xyzw(m)]
 
 
 def pose_stamped_dict(matrix: np.ndarray, stamp_ns: int, frame_id: str) -> dict[str, Any]:
@@ -212,13 +204,15 @@ def _xyz(obj: Any, keys: str) -> list[float]:
 def matrix_of_pose(msg: Any) -> np.ndarray:
     """(4, 4) float64 transform (m) of a PoseStamped."""
     pose = field(msg, "pose")
-    return _matrix(_xyz(field(pose, "position"), "xyz"), _xyz(field(pose, "orientation"), "xyzw"))
+    return pose_from_quaternion(_xyz(field(pose, "position"), "xyz"),
+                                _xyz(field(pose, "orientation"), "xyzw"))
 
 
 def matrix_of_transform(msg: Any) -> np.ndarray:
     """(4, 4) float64 transform (m) of a TransformStamped (child pose in the parent frame)."""
     tf = field(msg, "transform")
-    return _matrix(_xyz(field(tf, "translation"), "xyz"), _xyz(field(tf, "rotation"), "xyzw"))
+    return pose_from_quaternion(_xyz(field(tf, "translation"), "xyz"),
+                                _xyz(field(tf, "rotation"), "xyzw"))
 
 
 def matrix_array_dict(matrix: np.ndarray) -> dict[str, Any]:

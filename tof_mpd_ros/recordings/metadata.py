@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import copy
-import os
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -11,6 +10,7 @@ from typing import Any
 
 import yaml
 
+from ..atomic_file import write_atomically
 from ..errors import RecordingError
 from . import msgdefs
 
@@ -82,10 +82,9 @@ def build(mcap_name: str, topics: list[TopicStats], start_ns: int, end_ns: int,
 def write(directory: Path, document: dict[str, Any]) -> None:
     """Write ``metadata.yaml`` atomically (a crash leaves the old or the new file, never half)."""
     path = directory / METADATA_FILE
-    tmp = directory / (METADATA_FILE + ".tmp")
+    text = yaml.safe_dump(document, sort_keys=False).encode("utf-8")
     try:
-        tmp.write_text(yaml.safe_dump(document, sort_keys=False), encoding="utf-8")
-        os.replace(tmp, path)
+        write_atomically(path, lambda stream: stream.write(text))
     except OSError as err:
         raise RecordingError(f"{path}: cannot write metadata: {err}") from err
 

@@ -1,4 +1,4 @@
-"""The NumPy interchange (SPEC §3): load/save ``.npz`` files and convert them to/from recordings.
+"""The NPZ interchange (docs/recordings.md): load/save ``.npz`` files, convert to/from recordings.
 
 One ``.npz`` holds N frames of one camera:
 
@@ -18,13 +18,13 @@ recording defines as invalid come back as NaN: range/reference <= 0 or +-inf, am
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ..atomic_file import write_atomically
 from ..camera import Intrinsics
 from ..errors import InputError, RecordingError
 from ..frame import ToFFrame
@@ -102,11 +102,8 @@ def save_npz(path: str | Path, frames: Iterable[ToFFrame], *, overwrite: bool = 
     if path.exists() and not overwrite:
         raise RecordingError(f"{path}: already exists; refusing to overwrite")
     arrays = frames_to_arrays(list(frames))
-    tmp = path.with_name(path.name + ".tmp")
     try:
-        with open(tmp, "wb") as stream:
-            np.savez(stream, **arrays)
-        os.replace(tmp, path)
+        write_atomically(path, lambda stream: np.savez(stream, **arrays))
     except OSError as err:
         raise RecordingError(f"{path}: cannot write: {err}") from err
     return int(arrays["range_mm"].shape[0])

@@ -32,9 +32,9 @@ import numpy as np
 from ..camera import PAPER_CROP, Intrinsics
 from ..errors import SimulationError
 from ..frame import ToFFrame
+from ..pose import pose_mm_to_m
 from .checkerboard import CheckerboardConfig, render_checkerboard
 from .pathtrace.light import SpotLight
-from .poses import pose_mm_to_m
 from .raycast import render_surface
 from .scene import Scene
 from .structured_light import FusionConfig, StructuredLightConfig, reference_range

@@ -19,8 +19,8 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputError
+from ..pose import make_pose, rot_z, rotate, rotvec_to_matrix
 from ..validation import check_array
-from .poses import make_pose, rot_z, rotate
 from .surface import SurfaceImage
 
 
@@ -75,12 +75,6 @@ class CalibrationPoseConfig:
     max_off_axis_deg: float = 12.0
 
 
-def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
-    """(3, 3) rotation about the unit ``axis`` by ``angle`` radians (Rodrigues)."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    return np.eye(3) + math.sin(angle) * k + (1.0 - math.cos(angle)) * (k @ k)
-
-
 def calibration_poses(n: int, rng: np.random.Generator,
                       config: CalibrationPoseConfig = CalibrationPoseConfig()) -> np.ndarray:
     """Random board poses for calibration captures.
@@ -108,7 +102,7 @@ def calibration_poses(n: int, rng: np.random.Generator,
                               math.sin(off_axis) * math.sin(heading), math.cos(off_axis)])
         tilt_axis_angle = rng.uniform(0.0, 2.0 * math.pi)
         tilt_axis = np.array([math.cos(tilt_axis_angle), math.sin(tilt_axis_angle), 0.0])
-        tilt = _axis_angle(tilt_axis, math.radians(config.max_tilt_deg) * rng.uniform())
+        tilt = rotvec_to_matrix(tilt_axis * (math.radians(config.max_tilt_deg) * rng.uniform()))
         roll = rot_z(math.radians(rng.uniform(-config.max_roll_deg, config.max_roll_deg)))
         poses[i] = make_pose(tilt @ roll, direction * rng.uniform(*config.range_mm))
     return poses

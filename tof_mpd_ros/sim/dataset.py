@@ -1,4 +1,5 @@
-"""MD-Train / MD-Test-like datasets from the simulated cell (SPEC §2 "Data", §4).
+"""MD-Train / MD-Test-like datasets from the simulated cell (docs/method.md, "Data and units";
+the cell: docs/physics.md).
 
 A dataset directory holds three recordings (rosbag2 MCAP) and a summary:
 
@@ -32,11 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
+from ..arm.viewpoints import ViewpointConfig
 from ..frame import ToFFrame
 from .cell import SimCell
 from .checkerboard import calibration_poses
 from .scene import make_scene
-from .viewpoints import ViewpointConfig, plan_viewpoints
+from .viewpoints import plan_viewpoints
 
 log = logging.getLogger(__name__)
 

@@ -1,14 +1,16 @@
-"""Analytic ray casting of a :class:`~tof_mpd_ros.sim.scene.Scene`.
+"""Analytic ray casting of a :class:`~tof_mpd_ros.sim.scene.Scene`: the package's one ray caster.
 
-:func:`cast_rays` packs the scene into flat arrays and runs one compiled (numba) kernel over the
-rays in parallel; per ray it tests the table and then each object, culled by its bounding sphere.
-The kernel evaluates exactly the same floating-point expressions, in the same order, as the
-plain-numpy implementation :func:`cast_rays_reference` (all rays at once, a Python loop over the
-objects), which is kept as the test oracle: both give bit-identical hits.
+:func:`cast_rays` packs the scene into flat arrays (:func:`pack_scene`, columns named by the
+``TABLE_*``, ``GEOM_*`` and ``PLANE_*`` indices below) and runs one compiled (numba) kernel over
+the rays in parallel; per ray it tests the table and then each object, culled by its bounding
+sphere. :func:`sl_ranges` (the structured-light scan) and :func:`segment_blocked` (the
+simulator's light transport) use the same per-ray kernels. A plain-numpy version that evaluates
+the same floating-point expressions in the same order, all rays at once, is the test oracle
+(``test/oracles/raycast_reference.py``, not shipped): both give bit-identical hits.
 
 Units: origins, hit distances and the scene in **millimetres**, base frame; directions are unit
 vectors. Camera poses passed to :func:`render_surface` are camera-to-base with the translation in
-**millimetres** (convert a ROS pose in metres with :func:`~tof_mpd_ros.sim.poses.pose_m_to_mm`).
+**millimetres** (convert a ROS pose in metres with :func:`~tof_mpd_ros.pose.pose_m_to_mm`).
 """
 
 from __future__ import annotations
@@ -22,10 +24,9 @@ import numpy as np
 
 from ..camera import Intrinsics
 from ..errors import InputError
+from ..pose import rotate
 from ..validation import check_array
-from .objects import ObjectSpec
-from .poses import rotate
-from .scene import PlacedObject, Scene, Table
+from .scene import Scene
 from .surface import SurfaceImage
 
 # Hits closer than this to the ray origin are ignored, so a ray leaving a surface does not
@@ -52,178 +53,22 @@ class RayHits:
     material_id: np.ndarray
 
 
-@dataclass
-class _Rays:
-    """Rays as components, so every step is an elementwise numpy operation.
-
-    Origins are floats when all rays share one origin, else (M,) arrays; directions are (M,)
-    contiguous arrays (unit vectors). Units: mm.
-    """
-
-    ox: float | np.ndarray
-    oy: float | np.ndarray
-    oz: float | np.ndarray
-    dx: np.ndarray
-    dy: np.ndarray
-    dz: np.ndarray
-
-    def take(self, idx: np.ndarray) -> _Rays:
-        """The subset of rays ``idx`` ((K,) int); a shared origin stays shared."""
-        ox, oy, oz = (v if np.ndim(v) == 0 else v[idx] for v in (self.ox, self.oy, self.oz))
-        return _Rays(ox, oy, oz, self.dx[idx], self.dy[idx], self.dz[idx])
-
-    def to_object(self, obj: PlacedObject) -> _Rays:
-        """The same rays in ``obj``'s frame (objects only turn about z)."""
-        c, s = np.cos(obj.yaw_rad), np.sin(obj.yaw_rad)
-        x, y = self.ox - obj.x_mm, self.oy - obj.y_mm
-        return _Rays(c * x + s * y, c * y - s * x, self.oz - obj.z_mm,
-                     c * self.dx + s * self.dy, c * self.dy - s * self.dx, self.dz)
-
-
-Normal = tuple[np.ndarray, np.ndarray, np.ndarray]
-
-
-def _dot(n: np.ndarray, x: float | np.ndarray, y: float | np.ndarray,
-         z: float | np.ndarray) -> float | np.ndarray:
-    """n . (x, y, z), skipping zero coefficients (most faces are axis-aligned)."""
-    terms = [c * v for c, v in zip(n, (x, y, z), strict=True) if c != 0.0]
-    return sum(terms[1:], terms[0]) if terms else 0.0
-
-
-def _hit_polyhedron(r: _Rays, normals: np.ndarray,
-                    offsets: np.ndarray) -> tuple[np.ndarray, Normal]:
-    """Entry into the convex set ``normals @ x <= offsets`` (Kay-Kajiya slabs), object frame.
-
-    Args:
-        r: M rays in the object frame.
-        normals: (K, 3) outward unit plane normals; offsets: (K,) mm.
-
-    Returns:
-        t: (M,) entry distance, mm (inf = miss); the outward normal at the entry as three (M,)
-        components.
-    """
-    m = r.dx.size
-    t_in, t_out = np.full(m, -np.inf), np.full(m, np.inf)
-    k_in = np.zeros(m, dtype=np.intp)
-    open_ = np.ones(m, dtype=bool)
-    for k, (normal, offset) in enumerate(zip(normals, offsets, strict=True)):
-        denom = _dot(normal, r.dx, r.dy, r.dz)
-        inside_by = offset - _dot(normal, r.ox, r.oy, r.oz)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = inside_by / denom
-        entering = (denom < 0) & (t > t_in)
-        t_in = np.where(entering, t, t_in)
-        k_in[entering] = k
-        t_out = np.where((denom > 0) & (t < t_out), t, t_out)
-        # A ray parallel to a face and outside it never enters.
-        open_ &= (denom != 0) | (inside_by >= 0)
-    hit = open_ & (t_in <= t_out) & (t_in > T_MIN_MM)
-    n = normals[k_in]
-    return np.where(hit, t_in, np.inf), (n[:, 0], n[:, 1], n[:, 2])
-
-
-def _slab_z(r: _Rays, top: float) -> tuple[np.ndarray, np.ndarray]:
-    """Interval of t (mm) where the ray is inside 0 <= z <= top; empty as (inf, -inf)."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t0 = -r.oz / r.dz
-        t1 = (top - r.oz) / r.dz
-    flat = r.dz == 0
-    inside = (r.oz >= 0) & (r.oz <= top)
-    lo = np.where(flat, np.where(inside, -np.inf, np.inf), np.minimum(t0, t1))
-    hi = np.where(flat, np.where(inside, np.inf, -np.inf), np.maximum(t0, t1))
-    return lo, hi
-
-
-def _hit_cylinder(r: _Rays, radius: float, height: float) -> tuple[np.ndarray, Normal]:
-    """Entry into the upright cylinder x^2 + y^2 <= r^2, 0 <= z <= h (object frame, mm).
-
-    Same returns as :func:`_hit_polyhedron`.
-    """
-    a = r.dx**2 + r.dy**2
-    b = r.ox * r.dx + r.oy * r.dy
-    c = r.ox**2 + r.oy**2 - radius**2
-    disc = b * b - a * c
-    root = np.sqrt(np.maximum(disc, 0.0))
-    vertical = a < 1e-12
-    with np.errstate(divide="ignore", invalid="ignore"):
-        side_lo = np.where(vertical, np.where(c <= 0, -np.inf, np.inf), (-b - root) / a)
-        side_hi = np.where(vertical, np.where(c <= 0, np.inf, -np.inf), (-b + root) / a)
-    side_lo = np.where(disc < 0, np.inf, side_lo)
-    cap_lo, cap_hi = _slab_z(r, height)
-    t_in = np.maximum(side_lo, cap_lo)
-    hit = (t_in <= np.minimum(side_hi, cap_hi)) & (t_in > T_MIN_MM)
-    t_safe = np.where(hit, t_in, 0.0)
-    on_side = side_lo >= cap_lo
-    nx = np.where(on_side, (r.ox + t_safe * r.dx) / radius, 0.0)
-    ny = np.where(on_side, (r.oy + t_safe * r.dy) / radius, 0.0)
-    nz = np.where(on_side, 0.0, -np.sign(r.dz))
-    return np.where(hit, t_in, np.inf), (nx, ny, nz)
-
-
-def _hit_sphere(r: _Rays, radius: float) -> tuple[np.ndarray, Normal]:
-    """Entry into the sphere of ``radius`` centred at (0, 0, radius) (resting on z = 0).
-
-    Same returns as :func:`_hit_polyhedron`.
-    """
-    ocz = r.oz - radius
-    b = r.ox * r.dx + r.oy * r.dy + ocz * r.dz
-    c = r.ox**2 + r.oy**2 + ocz**2 - radius**2
-    disc = b * b - c
-    t_in = -b - np.sqrt(np.maximum(disc, 0.0))
-    hit = (disc >= 0) & (t_in > T_MIN_MM)
-    t_safe = np.where(hit, t_in, 0.0)
-    normal = ((r.ox + t_safe * r.dx) / radius, (r.oy + t_safe * r.dy) / radius,
-              (ocz + t_safe * r.dz) / radius)
-    return np.where(hit, t_in, np.inf), normal
-
-
-def _hit_local(spec: ObjectSpec, r: _Rays) -> tuple[np.ndarray, Normal]:
-    """Dispatch on the object's kind; rays and results in the object frame."""
-    if spec.kind in ("box", "prism"):
-        return _hit_polyhedron(r, *spec.polyhedron_planes())
-    if spec.kind == "cylinder":
-        return _hit_cylinder(r, spec.dims_mm[0] / 2.0, spec.dims_mm[2])
-    return _hit_sphere(r, spec.dims_mm[0] / 2.0)
-
-
-def _near_sphere(r: _Rays, centre: np.ndarray, radius: float) -> np.ndarray:
-    """(N,) bool: the ray passes within ``radius`` of ``centre`` ahead of its origin."""
-    cx, cy, cz = centre[0] - r.ox, centre[1] - r.oy, centre[2] - r.oz
-    along = cx * r.dx + cy * r.dy + cz * r.dz
-    dist2 = cx * cx + cy * cy + cz * cz - along * along
-    return (dist2 <= radius**2) & (along + radius > 0)
-
-
-def _hit_table(table: Table, r: _Rays) -> np.ndarray:
-    """(N,) distance (mm) to the table rectangle, inf = miss; rays from either side count."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (table.height_mm - r.oz) / r.dz
-    t_safe = np.where(np.isfinite(t), t, 0.0)
-    inside = ((np.abs(r.ox + t_safe * r.dx - table.centre_xy_mm[0]) <= table.half_extent_mm[0])
-              & (np.abs(r.oy + t_safe * r.dy - table.centre_xy_mm[1])
-                 <= table.half_extent_mm[1]))
-    return np.where(inside & (t > T_MIN_MM), t, np.inf)
-
-
-def _apply_object(obj: PlacedObject, rays: _Rays, hits: RayHits) -> None:
-    """Intersect ``obj`` and keep, in place, whichever of it and ``hits`` is nearer."""
-    centre, radius = obj.bounding_sphere()
-    idx = np.flatnonzero(_near_sphere(rays, centre, radius))
-    if idx.size == 0:
-        return
-    t, (nx, ny, nz) = _hit_local(obj.spec, rays.take(idx).to_object(obj))
-    nearer = t < hits.t_mm[idx]
-    sel = idx[nearer]
-    c, s = np.cos(obj.yaw_rad), np.sin(obj.yaw_rad)
-    nx, ny, nz = nx[nearer], ny[nearer], nz[nearer]
-    hits.t_mm[sel] = t[nearer]
-    hits.normal[sel] = np.stack([c * nx - s * ny, s * nx + c * ny, nz], axis=1)
-    hits.object_id[sel] = obj.scene_index
-    hits.albedo[sel] = obj.spec.albedo
-    hits.material_id[sel] = obj.spec.material_id
-
-
-_KIND_CODES = {"box": 0, "prism": 0, "cylinder": 1, "sphere": 2}
+# Columns of PackedScene.table: the table top's height, centre x, y, half extents x, y (mm) and
+# albedo. The kernels read these names (numba freezes module-level ints as constants).
+TABLE_Z, TABLE_CX, TABLE_CY, TABLE_HALF_X, TABLE_HALF_Y, TABLE_ALBEDO = range(6)
+N_TABLE = 6
+# Columns of PackedScene.geom, one row per object: its position (mm), cos and sin of its yaw,
+# its bounding sphere's centre (mm), radius squared and radius (the cull), and the shape radius
+# (cylinder, sphere) and its square.
+(GEOM_X, GEOM_Y, GEOM_Z, GEOM_COS_YAW, GEOM_SIN_YAW, GEOM_BOUND_X, GEOM_BOUND_Y, GEOM_BOUND_Z,
+ GEOM_BOUND_R2, GEOM_SHAPE_R, GEOM_SHAPE_R2, GEOM_BOUND_R) = range(12)
+N_GEOM = 12
+# Columns of PackedScene.planes[k, i]: outward unit normal x, y, z and offset (mm) of plane i.
+PLANE_NX, PLANE_NY, PLANE_NZ, PLANE_OFFSET = range(4)
+# PackedScene.kind codes.
+KIND_POLYHEDRON, KIND_CYLINDER, KIND_SPHERE = 0, 1, 2
+_KIND_CODES = {"box": KIND_POLYHEDRON, "prism": KIND_POLYHEDRON, "cylinder": KIND_CYLINDER,
+               "sphere": KIND_SPHERE}
 # planes per polyhedron (a box has 6, a prism 5)
 _MAX_PLANES = 6
 
@@ -233,13 +78,15 @@ class PackedScene:
     """The scene as flat arrays for the kernel (object k of the arrays = ``scene.objects[k]``).
 
     Attributes:
-        table: (6,) height, centre x, centre y, half extent x, half extent y (mm), albedo.
-        kind: (K,) int64 0 = polyhedron, 1 = cylinder, 2 = sphere.
-        geom: (K, 12) float64 x, y, z (mm), cos yaw, sin yaw, bounding-sphere centre x, y, z,
-            its radius squared, shape radius (cylinder, sphere), shape radius squared,
-            bounding-sphere radius.
+        table: (N_TABLE,) float64 indexed by ``TABLE_*``: height, centre x, centre y, half
+            extent x, half extent y (mm), albedo.
+        kind: (K,) int64 ``KIND_POLYHEDRON``, ``KIND_CYLINDER`` or ``KIND_SPHERE``.
+        geom: (K, N_GEOM) float64 indexed by ``GEOM_*``: x, y, z (mm), cos yaw, sin yaw,
+            bounding-sphere centre x, y, z (mm), its radius squared (mm^2), shape radius
+            (cylinder, sphere; mm), shape radius squared (mm^2), bounding-sphere radius (mm).
         height: (K,) float64 cylinder height, mm.
-        planes: (K, 6, 4) float64 polyhedron planes (normal, offset); ``n_planes`` (K,) used.
+        planes: (K, 6, 4) float64 polyhedron planes indexed by ``PLANE_*`` (unit normal, offset
+            in mm); ``n_planes`` (K,) int64 of them are used.
     """
 
     table: np.ndarray
@@ -251,13 +98,15 @@ class PackedScene:
 
 
 def pack_scene(scene: Scene) -> PackedScene:
-    """Flatten ``scene`` for :func:`_cast_kernel` (the same scalars the numpy oracle uses)."""
+    """Flatten ``scene`` for the kernels (the same scalars the numpy oracle uses), mm."""
     t = scene.table
-    table = np.array([t.height_mm, t.centre_xy_mm[0], t.centre_xy_mm[1], t.half_extent_mm[0],
-                      t.half_extent_mm[1], t.albedo], dtype=np.float64)
+    table = np.zeros(N_TABLE)
+    table[[TABLE_Z, TABLE_CX, TABLE_CY, TABLE_HALF_X, TABLE_HALF_Y, TABLE_ALBEDO]] = [
+        t.height_mm, t.centre_xy_mm[0], t.centre_xy_mm[1], t.half_extent_mm[0],
+        t.half_extent_mm[1], t.albedo]
     k = len(scene.objects)
     kind = np.zeros(k, dtype=np.int64)
-    geom = np.zeros((k, 12))
+    geom = np.zeros((k, N_GEOM))
     height = np.zeros(k)
     planes = np.zeros((k, _MAX_PLANES, 4))
     n_planes = np.zeros(k, dtype=np.int64)
@@ -266,14 +115,18 @@ def pack_scene(scene: Scene) -> PackedScene:
         kind[i] = _KIND_CODES[spec.kind]
         centre, radius = obj.bounding_sphere()
         shape_r = spec.dims_mm[0] / 2.0
-        geom[i] = [obj.x_mm, obj.y_mm, obj.z_mm, np.cos(obj.yaw_rad), np.sin(obj.yaw_rad),
-                   centre[0], centre[1], centre[2], radius**2, shape_r, shape_r**2, radius]
+        g = geom[i]
+        g[GEOM_X], g[GEOM_Y], g[GEOM_Z] = obj.x_mm, obj.y_mm, obj.z_mm
+        g[GEOM_COS_YAW], g[GEOM_SIN_YAW] = np.cos(obj.yaw_rad), np.sin(obj.yaw_rad)
+        g[GEOM_BOUND_X], g[GEOM_BOUND_Y], g[GEOM_BOUND_Z] = centre
+        g[GEOM_BOUND_R2], g[GEOM_BOUND_R] = radius**2, radius
+        g[GEOM_SHAPE_R], g[GEOM_SHAPE_R2] = shape_r, shape_r**2
         height[i] = spec.dims_mm[2]
-        if kind[i] == 0:
+        if kind[i] == KIND_POLYHEDRON:
             normals, offsets = spec.polyhedron_planes()
             n_planes[i] = len(offsets)
-            planes[i, :len(offsets), :3] = normals
-            planes[i, :len(offsets), 3] = offsets
+            planes[i, :len(offsets), PLANE_NX:PLANE_NZ + 1] = normals
+            planes[i, :len(offsets), PLANE_OFFSET] = offsets
     return PackedScene(table, kind, geom, height, planes, n_planes)
 
 
@@ -301,11 +154,11 @@ def _kernel_polyhedron(planes, n_planes, ox, oy, oz, dx, dy, dz):  # pragma: no 
     k_in = 0
     open_ = True
     for k in range(n_planes):
-        a = planes[k, 0]
-        b = planes[k, 1]
-        c = planes[k, 2]
+        a = planes[k, PLANE_NX]
+        b = planes[k, PLANE_NY]
+        c = planes[k, PLANE_NZ]
         denom = _dot3(a, b, c, dx, dy, dz)
-        inside_by = planes[k, 3] - _dot3(a, b, c, ox, oy, oz)
+        inside_by = planes[k, PLANE_OFFSET] - _dot3(a, b, c, ox, oy, oz)
         if denom < 0.0:
             t = inside_by / denom
             if t > t_in:
@@ -377,21 +230,22 @@ def _object_hit(k, kind, g, height, planes, n_planes, ox, oy, oz, dx, dy,
                 dz):  # pragma: no cover - compiled
     """Entry t of object k along a base-frame ray (inf = miss) and its object-frame normal:
     the ray is moved into the object's frame (yaw only) and the object's kernel runs."""
-    c = g[3]
-    s = g[4]
-    x = ox - g[0]
-    y = oy - g[1]
+    c = g[GEOM_COS_YAW]
+    s = g[GEOM_SIN_YAW]
+    x = ox - g[GEOM_X]
+    y = oy - g[GEOM_Y]
     lox = c * x + s * y
     loy = c * y - s * x
-    loz = oz - g[2]
+    loz = oz - g[GEOM_Z]
     ldx = c * dx + s * dy
     ldy = c * dy - s * dx
-    if kind[k] == 0:
+    if kind[k] == KIND_POLYHEDRON:
         tk, kp = _kernel_polyhedron(planes[k], n_planes[k], lox, loy, loz, ldx, ldy, dz)
-        return tk, planes[k, kp, 0], planes[k, kp, 1], planes[k, kp, 2]
-    if kind[k] == 1:
-        return _kernel_cylinder(g[9], g[10], height[k], lox, loy, loz, ldx, ldy, dz)
-    return _kernel_sphere(g[9], g[10], lox, loy, loz, ldx, ldy, dz)
+        return tk, planes[k, kp, PLANE_NX], planes[k, kp, PLANE_NY], planes[k, kp, PLANE_NZ]
+    if kind[k] == KIND_CYLINDER:
+        return _kernel_cylinder(g[GEOM_SHAPE_R], g[GEOM_SHAPE_R2], height[k], lox, loy, loz, ldx,
+                                ldy, dz)
+    return _kernel_sphere(g[GEOM_SHAPE_R], g[GEOM_SHAPE_R2], lox, loy, loz, ldx, ldy, dz)
 
 
 @nb.njit(cache=True, inline="always")
@@ -405,9 +259,10 @@ def _nearest_hit(ox, oy, oz, dx, dy, dz, table, kind, geom, height, planes,
     nz_b = np.nan
     which = -1
     # table (from either side)
-    t = (table[0] - oz) / dz
-    if ((t - t) == 0.0 and t > T_MIN_MM and abs(ox + t * dx - table[1]) <= table[3]
-            and abs(oy + t * dy - table[2]) <= table[4]):
+    t = (table[TABLE_Z] - oz) / dz
+    if ((t - t) == 0.0 and t > T_MIN_MM
+            and abs(ox + t * dx - table[TABLE_CX]) <= table[TABLE_HALF_X]
+            and abs(oy + t * dy - table[TABLE_CY]) <= table[TABLE_HALF_Y]):
         best = t
         nx_b = 0.0
         ny_b = 0.0
@@ -416,15 +271,15 @@ def _nearest_hit(ox, oy, oz, dx, dy, dz, table, kind, geom, height, planes,
     for k in range(kind.shape[0]):
         g = geom[k]
         # bounding-sphere cull in the base frame
-        cx = g[5] - ox
-        cy = g[6] - oy
-        cz = g[7] - oz
+        cx = g[GEOM_BOUND_X] - ox
+        cy = g[GEOM_BOUND_Y] - oy
+        cz = g[GEOM_BOUND_Z] - oz
         along = cx * dx + cy * dy + cz * dz
         dist2 = cx * cx + cy * cy + cz * cz - along * along
-        if not (dist2 <= g[8] and along + g[11] > 0.0):
+        if not (dist2 <= g[GEOM_BOUND_R2] and along + g[GEOM_BOUND_R] > 0.0):
             continue
-        c = g[3]
-        s = g[4]
+        c = g[GEOM_COS_YAW]
+        s = g[GEOM_SIN_YAW]
         tk, nx, ny, nz = _object_hit(k, kind, g, height, planes, n_planes, ox, oy, oz, dx, dy,
                                      dz)
         if tk < best:
@@ -459,18 +314,20 @@ def segment_blocked(ox, oy, oz, qx, qy, qz, t_lo, t_hi_margin, table, kind, geom
     t_hi = length - t_hi_margin
     if t_hi <= t_lo:
         return False
-    t = (table[0] - oz) / dz
-    if ((t - t) == 0.0 and t > t_lo and t < t_hi and abs(ox + t * dx - table[1]) <= table[3]
-            and abs(oy + t * dy - table[2]) <= table[4]):
+    t = (table[TABLE_Z] - oz) / dz
+    if ((t - t) == 0.0 and t > t_lo and t < t_hi
+            and abs(ox + t * dx - table[TABLE_CX]) <= table[TABLE_HALF_X]
+            and abs(oy + t * dy - table[TABLE_CY]) <= table[TABLE_HALF_Y]):
         return True
     for k in range(kind.shape[0]):
         g = geom[k]
-        cx = g[5] - ox
-        cy = g[6] - oy
-        cz = g[7] - oz
+        cx = g[GEOM_BOUND_X] - ox
+        cy = g[GEOM_BOUND_Y] - oy
+        cz = g[GEOM_BOUND_Z] - oz
         along = cx * dx + cy * dy + cz * dz
         dist2 = cx * cx + cy * cy + cz * cz - along * along
-        if not (dist2 <= g[8] and along + g[11] > t_lo and along - g[11] < t_hi):
+        if not (dist2 <= g[GEOM_BOUND_R2] and along + g[GEOM_BOUND_R] > t_lo
+                and along - g[GEOM_BOUND_R] < t_hi):
             continue
         tk = _object_hit(k, kind, g, height, planes, n_planes, ox, oy, oz, dx, dy, dz)[0]
         if tk > t_lo and tk < t_hi:
@@ -590,7 +447,8 @@ def cast_rays(scene: Scene, origins_mm: np.ndarray, directions: np.ndarray) -> R
         directions: (N, 3) float unit directions in the base frame.
 
     Returns:
-        The nearest hits, see :class:`RayHits` (bit-identical to :func:`cast_rays_reference`).
+        The nearest hits, see :class:`RayHits` (bit-identical to the numpy oracle,
+        ``test/oracles/raycast_reference.py``).
 
     Raises:
         InputError: on wrongly shaped inputs.
@@ -624,39 +482,6 @@ def _check_rays(origins_mm: np.ndarray, directions: np.ndarray
     if o.ndim == 2 and o.shape[0] != d.shape[0]:
         raise InputError(f"origins_mm: expected (3,) or ({d.shape[0]}, 3), got {o.shape}")
     return o, d
-
-
-def cast_rays_reference(scene: Scene, origins_mm: np.ndarray,
-                        directions: np.ndarray) -> RayHits:
-    """:func:`cast_rays` in plain numpy (all rays at once, a loop over objects): the test oracle.
-
-    Args:
-        scene: the scene (base frame, mm).
-        origins_mm: (3,) one origin shared by all rays, or (N, 3) one per ray; base frame, mm.
-        directions: (N, 3) float unit directions in the base frame.
-
-    Returns:
-        The nearest hits, see :class:`RayHits`.
-
-    Raises:
-        InputError: on wrongly shaped inputs.
-    """
-    o, d = _check_rays(origins_mm, directions)
-    comps = [float(v) for v in o] if o.ndim == 1 else [np.ascontiguousarray(v) for v in o.T]
-    dirs = [np.ascontiguousarray(v, dtype=np.float64) for v in d.T]
-    rays = _Rays(*comps, *dirs)
-    t_table = _hit_table(scene.table, rays)
-    on_table = np.isfinite(t_table)
-    hits = RayHits(
-        t_mm=t_table,
-        normal=np.where(on_table[:, None], np.array([0.0, 0.0, 1.0]), np.nan),
-        object_id=np.where(on_table, 0, -1).astype(np.int32),
-        albedo=np.where(on_table, scene.table.albedo, 0.0),
-        material_id=np.where(on_table, scene.table.material_id, -1).astype(np.int32),
-    )
-    for obj in scene.objects:
-        _apply_object(obj, rays, hits)
-    return hits
 
 
 @lru_cache(maxsize=8)
@@ -701,28 +526,3 @@ def render_surface(scene: Scene, camera_to_base_mm: np.ndarray,
         material_id=hits.material_id.reshape(shape),
         intrinsics=intrinsics,
     )
-
-
-def visible_from(scene: Scene, points_mm: np.ndarray, origin_mm: np.ndarray,
-                 tol_mm: float = 1.0) -> np.ndarray:
-    """Which surface points a point-like viewer (a projector, a light) sees unoccluded.
-
-    Args:
-        scene: the scene (base frame, mm).
-        points_mm: (N, 3) float points on scene surfaces, base frame, mm; NaN rows -> False.
-        origin_mm: (3,) viewer position, base frame, mm.
-        tol_mm: a point counts as visible when the first hit along the ray from the origin is
-            no nearer than its distance minus this tolerance (mm).
-
-    Returns:
-        (N,) bool.
-    """
-    p = check_array("points_mm", points_mm, ndim=2, shape=(None, 3), dtype_kind="fiu")
-    origin = check_array("origin_mm", origin_mm, ndim=1, shape=(3,), dtype_kind="fiu")
-    finite = np.isfinite(p).all(axis=1)
-    offset = np.where(finite[:, None], p - origin, np.array([0.0, 0.0, -1.0]))
-    dist = np.linalg.norm(offset, axis=1)
-    ok = finite & (dist > 0)
-    dirs = offset / np.where(dist > 0, dist, 1.0)[:, None]
-    hits = cast_rays(scene, origin.astype(np.float64), dirs)
-    return ok & (hits.t_mm >= dist - tol_mm)

@@ -15,8 +15,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError, SimulationError
+from ..pose import make_pose, rot_z
 from .objects import ObjectSpec, library_split
-from .poses import make_pose, rot_z
 
 # Where objects are arranged in front of the robot (base frame, mm). Chosen so that camera
 # poses 180-350 mm above the objects are comfortably inside the UR5e's reach.

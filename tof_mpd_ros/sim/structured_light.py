@@ -23,17 +23,13 @@ from dataclasses import dataclass, field
 import numba as nb
 import numpy as np
 
+from ..arm.tool import default_sl_to_tof_mm
 from ..camera import Intrinsics
 from ..errors import InputError
+from ..pose import invert_pose, make_pose, rot_z, transform_points
 from ..validation import check_array
-from .poses import invert_pose, make_pose, rot_z, transform_points
-from .raycast import camera_rays, render_surface, sl_ranges, visible_from
+from .raycast import camera_rays, sl_ranges
 from .scene import Scene
-
-
-def _default_sl_to_tof_mm() -> np.ndarray:
-    # SL camera 50 mm beside the ToF camera (optical axes parallel).
-    return make_pose(np.eye(3), np.array([-50.0, 0.0, 0.0]))
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,7 +49,7 @@ class StructuredLightConfig:
     """
 
     intrinsics: Intrinsics = field(default_factory=lambda: Intrinsics.from_fov(240, 180, 65.0))
-    sl_to_tof_mm: np.ndarray = field(default_factory=_default_sl_to_tof_mm)
+    sl_to_tof_mm: np.ndarray = field(default_factory=default_sl_to_tof_mm)
     projector_in_sl_mm: tuple[float, float, float] = (-75.0, 0.0, 0.0)
     noise_mm: float = 0.5
     max_incidence_deg: float = 80.0
@@ -104,27 +100,14 @@ def scan_poses(tof_to_base_mm: np.ndarray, sensor: StructuredLightConfig = Struc
     return np.array(poses)
 
 
-def _lit_by_projector(scene: Scene, points_base: np.ndarray, sl_to_base_mm: np.ndarray,
-                      sensor: StructuredLightConfig) -> np.ndarray:
-    """(N,) bool: inside the projector's field of view and not occluded from it."""
-    projector_to_base = sl_to_base_mm @ make_pose(np.eye(3), np.array(sensor.projector_in_sl_mm))
-    local = transform_points(invert_pose(projector_to_base), points_base)
-    intr = sensor.intrinsics
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = intr.project(local)
-    in_view = ((local[:, 2] > 0) & (uv[:, 0] >= -0.5) & (uv[:, 0] <= intr.width - 0.5)
-               & (uv[:, 1] >= -0.5) & (uv[:, 1] <= intr.height - 0.5))
-    return in_view & visible_from(scene, points_base, projector_to_base[:3, 3],
-                                  sensor.occlusion_tol_mm)
-
-
 def sl_scan(scene: Scene, sl_to_base_mm: np.ndarray, rng: np.random.Generator,
             sensor: StructuredLightConfig = StructuredLightConfig()) -> np.ndarray:
     """One SL scan: noisy 3-D points of the surfaces both the camera and the projector see.
 
     The camera ray cast, incidence test and projector visibility run as one compiled pass
-    (:func:`~tof_mpd_ros.sim.raycast.sl_ranges`); the result is that of
-    :func:`sl_scan_reference` (the same ranges bit for bit, the same noise draws).
+    (:func:`~tof_mpd_ros.sim.raycast.sl_ranges`); the result is that of the step-by-step
+    numpy oracle ``test/oracles/structured_light_reference.py`` (the same ranges bit for bit,
+    the same noise draws). The package's one implementation of an SL scan.
 
     Args:
         scene: the scene (base frame, mm).
@@ -143,33 +126,6 @@ def sl_scan(scene: Scene, sl_to_base_mm: np.ndarray, rng: np.random.Generator,
     lit = np.isfinite(ranges)
     noisy = ranges[lit] + rng.normal(0.0, sensor.noise_mm, size=int(lit.sum()))
     return transform_points(pose, camera_rays(sensor.intrinsics)[lit] * noisy[:, None])
-
-
-def sl_scan_reference(scene: Scene, sl_to_base_mm: np.ndarray, rng: np.random.Generator,
-                      sensor: StructuredLightConfig = StructuredLightConfig()) -> np.ndarray:
-    """:func:`sl_scan` step by step in numpy (ray cast image, then projector visibility): the
-    test oracle.
-
-    Args:
-        scene: the scene (base frame, mm).
-        sl_to_base_mm: (4, 4) SL camera optical frame -> base frame, mm.
-        rng: source of the range noise.
-        sensor: the SL sensor.
-
-    Returns:
-        (N, 3) float64 measured points in the base frame, mm (one per measured SL pixel).
-    """
-    pose = check_array("sl_to_base_mm", sl_to_base_mm, ndim=2, shape=(4, 4), dtype_kind="fiu")
-    surface = render_surface(scene, pose, sensor.intrinsics)
-    rays = camera_rays(sensor.intrinsics)
-    ranges = surface.range_mm.reshape(-1)
-    cos_incidence = -np.einsum("ij,ij->i", surface.normal.reshape(-1, 3), rays)
-    seen = np.isfinite(ranges) & (cos_incidence >= math.cos(math.radians(sensor.max_incidence_deg)))
-    rays, ranges = rays[seen], ranges[seen]
-    points = transform_points(pose, rays * ranges[:, None])
-    lit = _lit_by_projector(scene, points, pose, sensor)
-    noisy = ranges[lit] + rng.normal(0.0, sensor.noise_mm, size=int(lit.sum()))
-    return transform_points(pose, rays[lit] * noisy[:, None])
 
 
 def fuse_points(points_base_mm: np.ndarray, tof_to_base_mm: np.ndarray, intrinsics: Intrinsics,
@@ -271,7 +227,8 @@ def _nearest_cluster_medians(pixel: np.ndarray, range_mm: np.ndarray,
     """Per pixel, the median range of the nearest cluster with enough points.
 
     Points are bucketed by pixel (a counting sort) and each pixel's few ranges sorted, in one
-    compiled pass; the result is identical to :func:`_nearest_cluster_medians_reference`.
+    compiled pass; the result is identical to the global-sort oracle
+    (``test/oracles/structured_light_reference.py``).
 
     Args:
         pixel: (N,) int64 flat pixel index of each point; range_mm: (N,) float64 ranges, mm.
@@ -286,27 +243,6 @@ def _nearest_cluster_medians(pixel: np.ndarray, range_mm: np.ndarray,
                               n_pixels, float(fusion.cluster_gap_mm), int(fusion.min_points))
     pixels = np.flatnonzero(np.isfinite(medians))
     return pixels, medians[pixels]
-
-
-def _nearest_cluster_medians_reference(pixel: np.ndarray, range_mm: np.ndarray,
-                                       fusion: FusionConfig) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_nearest_cluster_medians` with one global numpy sort (the test oracle)."""
-    order = np.lexsort((range_mm, pixel))
-    pix, rng_sorted = pixel[order], range_mm[order]
-    breaks = np.empty(pix.size, dtype=bool)
-    breaks[0] = True
-    breaks[1:] = (pix[1:] != pix[:-1]) | (np.diff(rng_sorted) > fusion.cluster_gap_mm)
-    starts = np.flatnonzero(breaks)
-    sizes = np.diff(np.append(starts, pix.size))
-    keep = sizes >= fusion.min_points
-    starts, sizes = starts[keep], sizes[keep]
-    cluster_pix = pix[starts]
-    # Clusters are ordered by pixel, then range: the first kept one of a pixel is its nearest.
-    first = np.ones(starts.size, dtype=bool)
-    first[1:] = cluster_pix[1:] != cluster_pix[:-1]
-    starts, sizes = starts[first], sizes[first]
-    medians = 0.5 * (rng_sorted[starts + (sizes - 1) // 2] + rng_sorted[starts + sizes // 2])
-    return cluster_pix[first], medians
 
 
 def reference_range(scene: Scene, tof_to_base_mm: np.ndarray, intrinsics: Intrinsics,

@@ -3,9 +3,8 @@
 Memory stays bounded at MD scale (540 frames of 180 x 140, ~10 M usable pixels, the paper's
 "10 million patches"): the 280-wide encodings (~11 GB for 10 M) are never stored. What is kept is
 the NaN-padded calibrated range and log-amplitude planes of every frame (~0.2 GB) and int64 pixel
-indices; a batch's patches are gathered by indexing an unfolded view and encoded by the same
-:func:`~tof_mpd_ros.correction.encoding.encode_patches` the whole-frame path uses, so training and
-inference see bit-identical features.
+indices; a batch's pixels are encoded from those planes by the same kernels as inference
+(:mod:`tof_mpd_ros.correction.encoding`), so training and inference see bit-identical features.
 
 Per usable pixel (valid ToF measurement after calibration *and* a reference, i.e. not missing):
 
@@ -27,11 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-import torch.nn.functional as tnf
 from scipy.ndimage import binary_dilation
 
-from ..correction.calibration import IntrinsicCalibration
-from ..correction.encoding import EncodingConfig, encode_patches, prepare_planes
+from ..calibration.intrinsic import IntrinsicCalibration
+from ..correction.encoding import EncodingConfig, encode_pixels, padded_planes
 from ..errors import InputError
 from ..frame import ToFFrame
 
@@ -92,16 +90,9 @@ class TrainingData:
         Returns:
             ``(features, target, group)``: (M, 280) float32, (M,) float32 mm, (M,) int64.
         """
-        p = self.encoding.patch_size
-        h, w = self.frame_shape
-        n, rest = flat_index // (h * w), flat_index % (h * w)
-        y, x = rest // w, rest % w
-        # Pixel (y, x) sits at (y + p//2, x + p//2) in the padded plane, so window (y, x) of the
-        # unfolded view is its patch; advanced indexing copies just those M windows.
-        windows_r = self.range_planes.unfold(1, p, 1).unfold(2, p, 1)     # (N, H, W, P, P)
-        windows_la = self.log_amp_planes.unfold(1, p, 1).unfold(2, p, 1)
-        feats = encode_patches(windows_r[n, y, x], windows_la[n, y, x],
-                               self.amplitude.reshape(-1)[flat_index], self.encoding)
+        feats = torch.from_numpy(encode_pixels(
+            self.range_planes.numpy(), self.log_amp_planes.numpy(), self.amplitude.numpy(),
+            flat_index.numpy(), self.encoding))
         return (feats, self.target.reshape(-1)[flat_index],
                 self.group.reshape(-1)[flat_index].long())
 
@@ -197,8 +188,8 @@ def prepare_training_data(frames: Sequence[ToFFrame], calibration: IntrinsicCali
     amp = np.stack([f.amplitude for f in frames]).astype(np.float32)
     ref = np.stack([f.reference_mm for f in frames]).astype(np.float32)
     calibrated = calibration.apply(rng_, amp)
-    r_t, la_t, valid = prepare_planes(torch.from_numpy(calibrated), torch.from_numpy(amp))
-    usable = valid & torch.from_numpy(np.isfinite(ref))
+    planes = padded_planes(calibrated, amp, encoding)
+    usable = torch.from_numpy(planes.valid) & torch.from_numpy(np.isfinite(ref))
     gt = [edges.ground_truth_edges(r) for r in ref]
     if target_clip_mm is None:
         target_clip_mm = interior_clip_mm(calibrated, ref, usable.numpy(),
@@ -208,11 +199,9 @@ def prepare_training_data(frames: Sequence[ToFFrame], calibration: IntrinsicCali
     target = torch.where(usable, torch.from_numpy(t.astype(np.float32)), float("nan"))
     group = torch.from_numpy(np.stack([g for _, g in gt]))
     group = torch.where(usable, group.to(torch.int8), torch.tensor(-1, dtype=torch.int8))
-    half = encoding.patch_size // 2
-    pad = (half, half, half, half)
     return TrainingData(
-        range_planes=tnf.pad(r_t[:, None], pad, value=float("nan"))[:, 0].contiguous(),
-        log_amp_planes=tnf.pad(la_t[:, None], pad, value=float("nan"))[:, 0].contiguous(),
+        range_planes=torch.from_numpy(planes.range_mm),
+        log_amp_planes=torch.from_numpy(planes.log_amplitude),
         amplitude=torch.from_numpy(amp), target=target, group=group, usable=usable,
         calibrated=torch.from_numpy(calibrated), reference=torch.from_numpy(ref),
         encoding=encoding, digest=frames_digest(frames, calibration),

@@ -16,7 +16,7 @@ from typing import Any
 
 from ...errors import SimulationError
 from ...frame import DEFAULT_MOD_FREQ_HZ
-from .registry import EFFECTS, NOMINAL_EFFECTS
+from .registry import EFFECTS, nominal_effects
 
 #: P in amplitude·mm²: a ρ = 0.5 plane facing the camera at 300 mm returns amplitude ≈ 556
 DEFAULT_LIGHT_POWER = 1e8
@@ -85,7 +85,7 @@ class ToFConfig:
     light_power: float = DEFAULT_LIGHT_POWER
     min_amplitude: float = DEFAULT_MIN_AMPLITUDE
     effects: Mapping[str, EffectConfig] = field(
-        default_factory=lambda: _default_effects(NOMINAL_EFFECTS))
+        default_factory=lambda: _default_effects(nominal_effects()))
 
     def __post_init__(self) -> None:
         for key in ("mod_freq_hz", "light_power"):
@@ -123,6 +123,11 @@ class ToFConfig:
     def params(self, name: str) -> dict[str, Any]:
         """A copy of effect ``name``'s parameters."""
         return dict(self._get(name).params)
+
+    def effect_params(self, name: str) -> Any:
+        """Effect ``name``'s parameters as its typed, frozen ``Params`` dataclass (what its
+        ``apply`` reads), e.g. ``config.effect_params("multipath").gain``."""
+        return EFFECTS[name].parse(self._get(name).params)
 
     def enabled_effects(self) -> tuple[str, ...]:
         """Names of the effects that are on, in pipeline order."""

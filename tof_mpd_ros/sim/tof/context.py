@@ -11,6 +11,7 @@ from ...camera import Intrinsics
 from ..surface import SurfaceImage
 
 if TYPE_CHECKING:
+    from .effects.noise import NoiseParams
     from .world import WorldModel
 
 
@@ -45,7 +46,8 @@ class RenderContext:
         motion: camera motion during the frame (time offset), or None when at rest.
         true_range_mm: (H, W) float64 range of the pixel-centre surface, mm, NaN = no hit.
         amplitude: (H, W) float64 measured amplitude, set before the ``range`` stage.
-        noise_params: parameters of the ``noise`` effect (also read by ``noise_model``).
+        noise_params: parameters of the ``noise`` effect (also read by ``noise_model``), or
+            None (its defaults).
         multipath_phasor: (H, W) complex128 indirect phasor once ``multipath`` has run.
         receivers: (H, W) bool pixels the caller keeps, or None (all): ``multipath`` computes
             the indirect light only there (the others still send light). Set only when no later
@@ -69,7 +71,7 @@ class RenderContext:
     motion: CameraMotion | None = None
     true_range_mm: np.ndarray | None = None
     amplitude: np.ndarray | None = None
-    noise_params: dict = field(default_factory=dict)
+    noise_params: NoiseParams | None = None
     multipath_phasor: np.ndarray | None = None
     receivers: np.ndarray | None = None
     world: WorldModel | None = None

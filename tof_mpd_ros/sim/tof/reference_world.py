@@ -275,29 +275,13 @@ def extruded_objects(world_plane: np.ndarray, points: np.ndarray, albedo: np.nda
     Returns:
         The height field (None without off-plane points) and the walls' faces.
     """
-    from scipy.ndimage import gaussian_filter, grey_closing, grey_erosion
+    from scipy.ndimage import gaussian_filter
 
-    n, d = world_plane[:3], float(world_plane[3])
-    up = points @ n - d
-    above = up > 1.5
-    if above.sum() < 20:
+    columns = _height_columns(world_plane, points, cell_mm)
+    if columns is None:
         return None, []
-    p, up = points[above], up[above]
-    e1, e2 = _plane_axes(n)
-    foot = n * d
-    uv = np.stack([(p - foot) @ e1, (p - foot) @ e2], axis=1)
-    lo = uv.min(axis=0) - 2 * cell_mm
-    shape = tuple(np.ceil((uv.max(axis=0) + 2 * cell_mm - lo) / cell_mm).astype(int))
-    ij = np.floor((uv - lo) / cell_mm).astype(int)
-    heights = np.zeros(shape)
-    np.maximum.at(heights, (ij[:, 0], ij[:, 1]), up)
-    # points are splatted into single cells: close the gaps between them (coarse pixels far
-    # from the camera are several cells apart; open gaps would each grow walls of their own)
-    heights = grey_closing(heights, size=_closing_size(uv, cell_mm))
-    origin = foot + lo[0] * e1 + lo[1] * e2
-    # occupancy one cell inside the outline: a cell on it is partly free space, and a ray
-    # grazing a visible face must not be cut by the cell the face runs through
-    field = HeightField(origin, e1, e2, n.copy(), float(cell_mm), grey_erosion(heights, size=3))
+    heights, field, above = columns
+    n, e1, e2, origin = field.normal, field.e1, field.e2, field.origin
     # the outline: occupied cells next to a free one; outward = down the smoothed occupancy
     inside = heights > 0
     pad = np.pad(inside, 1)
@@ -336,6 +320,37 @@ def extruded_objects(world_plane: np.ndarray, points: np.ndarray, albedo: np.nda
                               area[sel], np.full(valid[sel].shape, rho),
                               valid[sel] & hidden[sel], (cell_mm, leaf_mm)))
     return field, faces
+
+
+def _height_columns(world_plane: np.ndarray, points: np.ndarray, cell_mm: float
+                    ) -> tuple[np.ndarray, HeightField, np.ndarray] | None:
+    """The off-plane points as columns down to the support plane: their heights (U, V) mm on
+    a ``cell_mm`` grid of the plane, the visibility height field (one cell inside the
+    outline) and which of ``points`` (M,) bool are off the plane; None with too few."""
+    from scipy.ndimage import grey_closing, grey_erosion
+
+    n, d = world_plane[:3], float(world_plane[3])
+    up = points @ n - d
+    above = up > 1.5
+    if above.sum() < 20:
+        return None
+    p, up = points[above], up[above]
+    e1, e2 = _plane_axes(n)
+    foot = n * d
+    uv = np.stack([(p - foot) @ e1, (p - foot) @ e2], axis=1)
+    lo = uv.min(axis=0) - 2 * cell_mm
+    shape = tuple(np.ceil((uv.max(axis=0) + 2 * cell_mm - lo) / cell_mm).astype(int))
+    ij = np.floor((uv - lo) / cell_mm).astype(int)
+    heights = np.zeros(shape)
+    np.maximum.at(heights, (ij[:, 0], ij[:, 1]), up)
+    # points are splatted into single cells: close the gaps between them (coarse pixels far
+    # from the camera are several cells apart; open gaps would each grow walls of their own)
+    heights = grey_closing(heights, size=_closing_size(uv, cell_mm))
+    origin = foot + lo[0] * e1 + lo[1] * e2
+    # occupancy one cell inside the outline: a cell on it is partly free space, and a ray
+    # grazing a visible face must not be cut by the cell the face runs through
+    field = HeightField(origin, e1, e2, n.copy(), float(cell_mm), grey_erosion(heights, size=3))
+    return heights, field, above
 
 
 def plane_pixels(surface: SurfaceImage, plane: Plane, max_tilt_deg: float = 25.0) -> np.ndarray:
@@ -444,6 +459,39 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
     if plane is not None:
         n_w = pose[:3, :3] @ plane.normal
         world_plane = np.r_[n_w, plane.offset_mm + n_w @ pose[:3, 3]]
+    faces, objects = _seen_surfaces(surface, pose, others, views, plane, on_plane,
+                                    world_plane, border_fraction, notes)
+    field = None
+    if plane is not None and extrude:
+        field, walls = extruded_objects(world_plane, np.concatenate([o[0] for o in objects]),
+                                        np.concatenate([o[1] for o in objects]), views,
+                                        cell_mm=leaf_mm / 2.0, leaf_mm=leaf_mm)
+        faces += walls
+        notes["extruded_wall_mm2"] = float(sum(f.area[f.valid].sum() for f in walls))
+    if plane is not None:
+        rho = float(np.median(surface.albedo[on_plane]))
+        faces.append(_moved(_plane_face(plane, rho, leaf_mm, cutoff_deg), pose))
+        notes["support_plane"] = {"normal": plane.normal.tolist(),
+                                  "offset_mm": plane.offset_mm,
+                                  "inlier_fraction": plane.inlier_fraction, "albedo": rho}
+    tree = build_tree(faces)
+    dv = DepthViews(np.stack([v[0] for v in views]), np.stack([v[1] for v in views]),
+                    np.stack([v[2] for v in views]))
+    light = camera_spot(pose, cutoff_deg, beam_deg)
+    lit = shadow_test_views(tree.centre[:tree.n_leaves], tree.normal[:tree.n_leaves],
+                            light.position, dv, field)
+    return WorldModel(tree, light, pose, views=dv, lit=lit, notes=notes,
+                      support_plane=world_plane, height_field=field)
+
+
+def _seen_surfaces(surface: SurfaceImage, pose: np.ndarray,
+                   others: tuple[tuple[SurfaceImage, np.ndarray], ...], views: list,
+                   plane: Plane | None, on_plane: np.ndarray | None,
+                   world_plane: np.ndarray | None, border_fraction: float, notes: dict
+                   ) -> tuple[list[FaceGrid], list[tuple[np.ndarray, np.ndarray]]]:
+    """The leaves of what the views show off the support plane (each surface once) and of the
+    border extension, and the same surfaces as (points (M, 3) world mm, albedo (M,)) for the
+    extrusion. Adds ``border_extension_px`` to ``notes`` when the border is extended."""
     keep = surface.valid if on_plane is None else surface.valid & ~on_plane
     faces = surface_faces(surface, pose, keep)
     objects = [(surface.points_mm()[keep] @ pose[:3, :3].T + pose[:3, 3],
@@ -466,27 +514,7 @@ def world_from_surface(surface: SurfaceImage, *, leaf_mm: float = DEFAULT_LEAF_M
         objects.append((wide.points_mm()[beyond] @ pose[:3, :3].T + pose[:3, 3],
                         wide.albedo[beyond]))
         notes["border_extension_px"] = margin
-    field = None
-    if plane is not None and extrude:
-        field, walls = extruded_objects(world_plane, np.concatenate([o[0] for o in objects]),
-                                        np.concatenate([o[1] for o in objects]), views,
-                                        cell_mm=leaf_mm / 2.0, leaf_mm=leaf_mm)
-        faces += walls
-        notes["extruded_wall_mm2"] = float(sum(f.area[f.valid].sum() for f in walls))
-    if plane is not None:
-        rho = float(np.median(surface.albedo[on_plane]))
-        faces.append(_moved(_plane_face(plane, rho, leaf_mm, cutoff_deg), pose))
-        notes["support_plane"] = {"normal": plane.normal.tolist(),
-                                  "offset_mm": plane.offset_mm,
-                                  "inlier_fraction": plane.inlier_fraction, "albedo": rho}
-    tree = build_tree(faces)
-    dv = DepthViews(np.stack([v[0] for v in views]), np.stack([v[1] for v in views]),
-                    np.stack([v[2] for v in views]))
-    light = camera_spot(pose, cutoff_deg, beam_deg)
-    lit = shadow_test_views(tree.centre[:tree.n_leaves], tree.normal[:tree.n_leaves],
-                            light.position, dv, field)
-    return WorldModel(tree, light, pose, views=dv, lit=lit, notes=notes,
-                      support_plane=world_plane, height_field=field)
+    return faces, objects
 
 
 def _moved(face: FaceGrid, pose: np.ndarray) -> FaceGrid:

@@ -1,6 +1,7 @@
 """Render a ToF measurement: from a (supersampled) surface image, or from a reference range image.
 
-Pipeline (each named effect can be switched off in :class:`.config.ToFConfig`):
+Pipeline (:mod:`.pipeline`, the order the mismatch predictor walks too; each named effect can be
+switched off in :class:`.config.ToFConfig`):
 
 1. geometry: ``hand_eye``, ``time_offset`` re-render the surface from the true camera pose;
 2. direct return of every sample, ``P ρ cosθ / r² · e^{i 4π f r / c}``;
@@ -27,13 +28,12 @@ from ...frame import ToFFrame
 from ..surface import SurfaceImage
 from .config import ToFConfig
 from .context import CameraMotion, RenderContext
-from .effects.mixed_pixels import light_footprint_sigma_px
-from .effects.phase_wrapping import PhaseWrapping
 from .phasor import direct_phasor, phasor_to_range, unwrap_to_guide
+from .pipeline import Action, Step, frame_context, pipeline_steps, run_step
 from .rays import ray_directions
 from .reference import surface_from_reference
 from .reference_world import ReferenceView, world_from_surface
-from .registry import EFFECTS, effect_names
+from .registry import EFFECTS
 from .world import WorldModel
 
 
@@ -125,46 +125,28 @@ def _footprint_hit(samples: SurfaceImage, s: int, mixing: bool) -> np.ndarray:
     return hit.reshape(h, s, w, s).any(axis=(1, 3))
 
 
-def _run_stage(stage: str, x: Any, config: ToFConfig, ctx: RenderContext,
-               skip: tuple[str, ...] = ()) -> Any:
-    """Apply the enabled effects of ``stage`` in registry order (except those in ``skip``)."""
-    for name in effect_names(stage):
-        if name in skip:
-            continue
-        cfg = config.effects[name]
-        # noise_model replaces noise: only one noise draw per frame
-        if name == "noise" and config.effects["noise_model"].enabled:
-            continue
-        if cfg.enabled:
-            x = EFFECTS[name].apply(x, cfg.params, ctx)
+def _run_stage(stage: str, x: Any, steps: tuple[Step, ...], config: ToFConfig,
+               ctx: RenderContext, transport: bool = False) -> Any:
+    """``x`` through the steps of ``stage`` in pipeline order; with ``transport`` (an external
+    renderer's phasor) the light-transport effects are left out: that phasor holds them."""
+    for step in steps:
+        if step.stage == stage and not (transport and step.effect.light_transport):
+            x = run_step(step, x, config, ctx)
     return x
 
 
-def _pixel_phasors(samples: SurfaceImage, config: ToFConfig, ctx: RenderContext) -> np.ndarray:
-    """(H, W) complex128 direct phasor of each pixel after the footprint stage."""
-    s = ctx.supersample
-    z_samples = direct_phasor(samples.range_mm, samples.normal, samples.albedo,
-                              ray_directions(samples.intrinsics), config.mod_freq_hz,
-                              config.light_power)
-    if config.effects["mixed_pixels"].enabled:
-        return _run_stage("footprint", z_samples, config, ctx)
-    # no footprint: the ray through the pixel centre only
-    return z_samples[s // 2::s, s // 2::s] if s > 1 else z_samples
-
-
-def _readout(z: np.ndarray, config: ToFConfig, ctx: RenderContext) -> np.ndarray:
-    """(H, W) float64 range in mm of the phasors, with the camera's systematic errors."""
-    if config.effects["phase_wrapping"].enabled:
-        range_mm = _run_stage("readout", z, config, ctx)
-    else:
-        range_mm = PhaseWrapping.unwrapped(z, ctx)
-    ctx.amplitude = np.abs(z)
-    return _run_stage("range", range_mm, config, ctx)
-
-
-#: phasor-stage effects after ``multipath`` that mix neighbouring pixels: with any of them on,
-#: every pixel's indirect light is needed and ``receivers`` is ignored
-_PIXEL_MIXING_AFTER_MULTIPATH = ("subsurface", "lens_scatter")
+def _receivers(receivers: np.ndarray | None, config: ToFConfig,
+               ctx: RenderContext) -> np.ndarray | None:
+    """The caller's receivers, or None when an effect that is on mixes every pixel's indirect
+    light into its neighbours (then all are needed)."""
+    if receivers is None or any(config.effects[name].enabled
+                                for name, e in EFFECTS.items() if e.mixes_pixels):
+        return None
+    receivers = np.asarray(receivers, dtype=bool)
+    if receivers.shape != ctx.intrinsics.shape:
+        raise InputError(f"receivers: expected shape {ctx.intrinsics.shape}, "
+                         f"got {receivers.shape}")
+    return receivers
 
 
 def _render(samples: SurfaceImage, config: ToFConfig, rng: np.random.Generator,
@@ -172,39 +154,35 @@ def _render(samples: SurfaceImage, config: ToFConfig, rng: np.random.Generator,
             receivers: np.ndarray | None = None,
             world: WorldModel | None = None,
             transport: np.ndarray | None = None) -> ToFMeasurement:
+    """The stages of :data:`.pipeline.STAGE_ORDER` in turn (see :func:`render_tof`)."""
     s = supersample
-    ctx = RenderContext(intrinsics=pixel_intrinsics(samples.intrinsics, s), surface=samples,
-                        samples=samples, supersample=s, mod_freq_hz=config.mod_freq_hz,
-                        light_power=config.light_power, rng=rng, frame_index=int(frame_index),
-                        motion=motion, noise_params=dict(config.effects["noise"].params),
-                        world=world)
-    ctx.footprint_sigma_px = light_footprint_sigma_px(config)
-    if receivers is not None and not any(config.effects[name].enabled
-                                         for name in _PIXEL_MIXING_AFTER_MULTIPATH):
-        receivers = np.asarray(receivers, dtype=bool)
-        if receivers.shape != ctx.intrinsics.shape:
-            raise InputError(f"receivers: expected shape {ctx.intrinsics.shape}, "
-                             f"got {receivers.shape}")
-        ctx.receivers = receivers
-    samples = _run_stage("geometry", samples, config, ctx)
+    steps = pipeline_steps()
+    ctx = frame_context(config, pixel_intrinsics(samples.intrinsics, s), samples, rng=rng,
+                        supersample=s, frame_index=frame_index, motion=motion, world=world)
+    ctx.receivers = _receivers(receivers, config, ctx)
+    samples = _run_stage("geometry", samples, steps, config, ctx)
     ctx.samples = samples
     ctx.surface = centre_samples(samples, s)
     ctx.true_range_mm = ctx.surface.range_mm
 
-    if transport is None:
-        direct = _pixel_phasors(samples, config, ctx)
-        z = _run_stage("phasor", direct, config, ctx)
+    if transport is None:  # DIRECT, then the footprint
+        z_samples = direct_phasor(samples.range_mm, samples.normal, samples.albedo,
+                                  ray_directions(samples.intrinsics), config.mod_freq_hz,
+                                  config.light_power)
+        direct = _run_stage("footprint", z_samples, steps, config, ctx)
     else:
         # an external renderer did the light transport (footprint and multipath included)
         direct = np.asarray(transport, dtype=np.complex128)
         if direct.shape != ctx.intrinsics.shape:
             raise InputError(f"transport: expected shape {ctx.intrinsics.shape}, "
                              f"got {direct.shape}")
-        z = _run_stage("phasor", direct, config, ctx, skip=("multipath",))
-    range_mm = _readout(z, config, ctx)
-    amplitude = ctx.amplitude
+    z = _run_stage("phasor", direct, steps, config, ctx, transport=transport is not None)
+    ctx.amplitude = amplitude = np.abs(z)
+    range_mm = _run_stage("range", _run_stage("readout", z, steps, config, ctx), steps, config,
+                          ctx)
 
-    mixing = config.effects["mixed_pixels"].enabled
+    mixing = any(step.action(config) is Action.APPLY for step in steps
+                 if step.stage == "footprint")
     valid = _footprint_hit(samples, s, mixing) & (amplitude >= config.min_amplitude)
     direct_range = unwrap_to_guide(phasor_to_range(direct, config.mod_freq_hz),
                                    ctx.true_range_mm, config.mod_freq_hz)

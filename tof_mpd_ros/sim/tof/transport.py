@@ -206,6 +206,8 @@ def _sum_up(w_re, w_im, w_abs, child, n_leaves):  # pragma: no cover - compiled
         w_abs[i] = w_abs[a] + w_abs[b]
 
 
+# One compiled loop nest (per receiver: walk the tree, refine or take each node): a call per
+# node would cost numba a call frame in the innermost loop, and the cuts are its one state.
 @nb.njit(parallel=True, fastmath={"nsz", "arcp", "contract", "afn", "reassoc"}, cache=True)
 def _gather(rx_pos, rx_nrm, centre, normal, area, radius, spread, thickness, child, roots,
             w_re, w_im, w_abs, open2, max_spread, k_path, min_cos, mode, table, kind, geom,

@@ -11,18 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...pose import rotvec_to_matrix
 from ..surface import SurfaceImage
-
-
-def rotation_matrix(rotvec: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation matrix of a rotation vector (axis · angle in rad), Rodrigues' formula."""
-    w = np.asarray(rotvec, dtype=np.float64)
-    theta = float(np.linalg.norm(w))
-    if theta < 1e-15:
-        return np.eye(3)
-    k = w / theta
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(theta) * kx + (1.0 - np.cos(theta)) * kx @ kx
 
 
 def move_camera(surface: SurfaceImage, rotvec: np.ndarray, translation_mm: np.ndarray,
@@ -38,7 +28,7 @@ def move_camera(surface: SurfaceImage, rotvec: np.ndarray, translation_mm: np.nd
     Returns:
         SurfaceImage on the same grid, in the new camera's frame: ``p' = Rᵀ (p − t)``.
     """
-    rot = rotation_matrix(rotvec)
+    rot = rotvec_to_matrix(rotvec)
     t = np.asarray(translation_mm, dtype=np.float64)
     k = surface.intrinsics
     h, w = k.shape

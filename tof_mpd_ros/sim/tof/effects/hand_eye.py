@@ -8,32 +8,33 @@ plus a range change that vary with the scene depth.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
-from ...surface import SurfaceImage
 from ..context import RenderContext
-from ..effect import Effect, ParamSpec
-from ._geometry import moved_surface
+from ..effect import CameraMoveEffect, param
 
 
-class HandEye(Effect):
+@dataclass(frozen=True)
+class HandEyeParams:
+    """Parameters of :class:`HandEye`."""
+
+    rx_mrad: float = param(0.0, -20.0, 20.0, "mrad", "rotation about the optical x axis")
+    ry_mrad: float = param(0.0, -20.0, 20.0, "mrad", "rotation about the optical y axis")
+    rz_mrad: float = param(0.0, -20.0, 20.0, "mrad", "rotation about the optical axis")
+    tx_mm: float = param(0.0, -10.0, 10.0, "mm", "translation along optical x (right)")
+    ty_mm: float = param(0.0, -10.0, 10.0, "mm", "translation along optical y (down)")
+    tz_mm: float = param(0.0, -10.0, 10.0, "mm", "translation along the optical axis")
+
+
+class HandEye(CameraMoveEffect):
     name = "hand_eye"
-    stage = "geometry"
     summary = "small rotation/translation error of the camera pose; geometry reprojected"
-    params = (
-        ParamSpec("rx_mrad", 0.0, -20.0, 20.0, "mrad", "rotation about the optical x axis"),
-        ParamSpec("ry_mrad", 0.0, -20.0, 20.0, "mrad", "rotation about the optical y axis"),
-        ParamSpec("rz_mrad", 0.0, -20.0, 20.0, "mrad", "rotation about the optical axis"),
-        ParamSpec("tx_mm", 0.0, -10.0, 10.0, "mm", "translation along optical x (right)"),
-        ParamSpec("ty_mm", 0.0, -10.0, 10.0, "mm", "translation along optical y (down)"),
-        ParamSpec("tz_mm", 0.0, -10.0, 10.0, "mm", "translation along the optical axis"),
-    )
+    Params = HandEyeParams
 
-    def apply(self, x: SurfaceImage, params: Mapping[str, Any],
-              ctx: RenderContext) -> SurfaceImage:
-        rot = 1e-3 * np.array([params["rx_mrad"], params["ry_mrad"], params["rz_mrad"]], float)
-        trans = np.array([params["tx_mm"], params["ty_mm"], params["tz_mm"]], float)
-        return moved_surface(x, rot, trans, ctx)
+    def camera_move(self, params: HandEyeParams, ctx: RenderContext
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """The calibration error itself, whatever the camera's motion (zero when at rest)."""
+        rot = 1e-3 * np.array([params.rx_mrad, params.ry_mrad, params.rz_mrad], float)
+        return rot, np.array([params.tx_mm, params.ty_mm, params.tz_mm], float)

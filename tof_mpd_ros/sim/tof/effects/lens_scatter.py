@@ -8,29 +8,47 @@ the field of view is not modelled.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import ndimage
 
 from ..context import RenderContext
-from ..effect import Effect, ParamSpec
+from ..effect import Effect, param
+
+
+@dataclass(frozen=True)
+class LensScatterParams:
+    """Parameters of :class:`LensScatter`."""
+
+    fraction: float = param(0.02, 0.0, 0.2, "1", "share of each pixel's light scattered")
+    sigma_px: float = param(25.0, 5.0, 80.0, "px", "width of the scatter PSF")
+
+
+def gaussian_glare(x: np.ndarray, sigma: float) -> np.ndarray:
+    """(H, W) complex128 ``x`` blurred by the scatter PSF of σ px (light beyond the border is
+    lost: zero padding, kernel truncated at 3σ)."""
+    return (ndimage.gaussian_filter(x.real, sigma, mode="constant", truncate=3.0)
+            + 1j * ndimage.gaussian_filter(x.imag, sigma, mode="constant", truncate=3.0))
 
 
 class LensScatter(Effect):
     name = "lens_scatter"
     stage = "phasor"
     summary = "a fraction of each pixel's phasor spread over the image by a wide PSF"
-    params = (
-        ParamSpec("fraction", 0.02, 0.0, 0.2, "1", "share of each pixel's light scattered"),
-        ParamSpec("sigma_px", 25.0, 5.0, 80.0, "px", "width of the scatter PSF"),
-    )
+    Params = LensScatterParams
+    mixes_pixels = True
 
-    def apply(self, x: np.ndarray, params: Mapping[str, Any],
+    def apply(self, x: np.ndarray, params: LensScatterParams,
               ctx: RenderContext) -> np.ndarray:
-        frac = float(params["fraction"])
-        sigma = float(params["sigma_px"])
-        glare = (ndimage.gaussian_filter(x.real, sigma, mode="constant", truncate=3.0)
-                 + 1j * ndimage.gaussian_filter(x.imag, sigma, mode="constant", truncate=3.0))
-        return (1.0 - frac) * x + frac * glare
+        return self.scatter(x, params, gaussian_glare)
+
+    @staticmethod
+    def scatter(x: np.ndarray, params: LensScatterParams,
+                glare: Callable[[np.ndarray, float], np.ndarray]) -> np.ndarray:
+        """The package's one implementation of the scatter equation ``(1 − f) Z + f · G_σ ∗ Z``
+        on (H, W) complex128 phasors, with ``glare(Z, σ)`` computing ``G_σ ∗ Z`` (the mismatch
+        predictor passes an FFT version of :func:`gaussian_glare` for wide PSFs)."""
+        frac = float(params.fraction)
+        return (1.0 - frac) * x + frac * glare(x, float(params.sigma_px))

@@ -13,14 +13,14 @@ through its centre.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy import ndimage
 
 from ..context import RenderContext
-from ..effect import Effect, ParamSpec
+from ..effect import Effect, param
 
 if TYPE_CHECKING:
     from ..config import ToFConfig
@@ -59,21 +59,32 @@ def box_sum(samples: np.ndarray, s: int) -> np.ndarray:
     return samples.reshape(h, s, w, s).mean(axis=(1, 3))
 
 
+@dataclass(frozen=True)
+class MixedPixelsParams:
+    """Parameters of :class:`MixedPixels`."""
+
+    psf_sigma_px: float = param(0.3, 0.0, 3.0, "px",
+                                "Gaussian optical blur on top of the pixel's box footprint")
+
+
 class MixedPixels(Effect):
     name = "mixed_pixels"
     stage = "footprint"
     nominal = True
     summary = "phasor sum over the pixel footprint: ranges between fore- and background at edges"
-    params = (
-        ParamSpec("psf_sigma_px", 0.3, 0.0, 3.0, "px",
-                  "Gaussian optical blur on top of the pixel's box footprint"),
-    )
+    Params = MixedPixelsParams
+    light_transport = True
 
-    def apply(self, x: np.ndarray, params: Mapping[str, Any],
+    def apply(self, x: np.ndarray, params: MixedPixelsParams,
               ctx: RenderContext) -> np.ndarray:
         """(s·H, s·W) complex128 sample phasors -> (H, W) complex128 pixel phasors."""
         s = ctx.supersample
-        sigma = float(params["psf_sigma_px"])
+        sigma = float(params.psf_sigma_px)
         if s > 1:
             return box_sum(blur_phasor(x, sigma * s), s)
         return blur_phasor(x, footprint_sigma_px(sigma))
+
+    def bypass(self, x: np.ndarray, ctx: RenderContext) -> np.ndarray:
+        """Off: each pixel sees only the ray through its centre, (s·H, s·W) -> (H, W)."""
+        s = ctx.supersample
+        return x[s // 2::s, s // 2::s] if s > 1 else x

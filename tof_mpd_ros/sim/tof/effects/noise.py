@@ -11,13 +11,12 @@ adds shot noise without signal). For a ≫ σ the range noise is therefore
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..context import RenderContext
-from ..effect import Effect, ParamSpec
+from ..effect import Effect, param
 from ..phasor import phase_per_mm
 
 
@@ -50,21 +49,27 @@ def add_noise(phasor: np.ndarray, sigma: np.ndarray, rng: np.random.Generator) -
     return phasor + sigma * (draws[0] + 1j * draws[1])
 
 
+@dataclass(frozen=True)
+class NoiseParams:
+    """Parameters of :class:`Noise` (also read by ``noise_model``)."""
+
+    read_std: float = param(0.5, 0.05, 5.0, "amplitude", "read noise std per component")
+    shot_gain: float = param(0.004, 0.0, 0.05, "amplitude",
+                             "shot-noise variance per unit of amplitude")
+    ambient: float = param(0.0, 0.0, 500.0, "amplitude",
+                           "ambient light: adds shot noise, no signal")
+
+
 class Noise(Effect):
     name = "noise"
     stage = "phasor"
     nominal = True
     summary = "shot + read noise on the phasor components (variance grows with amplitude)"
-    params = (
-        ParamSpec("read_std", 0.5, 0.05, 5.0, "amplitude", "read noise std per component"),
-        ParamSpec("shot_gain", 0.004, 0.0, 0.05, "amplitude",
-                  "shot-noise variance per unit of amplitude"),
-        ParamSpec("ambient", 0.0, 0.0, 500.0, "amplitude",
-                  "ambient light: adds shot noise, no signal"),
-    )
+    Params = NoiseParams
+    stochastic = True
 
-    def apply(self, x: np.ndarray, params: Mapping[str, Any],
+    def apply(self, x: np.ndarray, params: NoiseParams,
               ctx: RenderContext) -> np.ndarray:
-        sigma = phasor_noise_std(np.abs(x), float(params["read_std"]),
-                                 float(params["shot_gain"]), float(params["ambient"]))
+        sigma = phasor_noise_std(np.abs(x), float(params.read_std),
+                                 float(params.shot_gain), float(params.ambient))
         return add_noise(x, sigma, ctx.rng)

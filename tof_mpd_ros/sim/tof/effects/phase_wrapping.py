@@ -8,13 +8,10 @@ agree there; the effect matters when a camera runs at higher frequency or sees f
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 import numpy as np
 
 from ..context import RenderContext
-from ..effect import Effect
+from ..effect import Effect, NoParams
 from ..phasor import phasor_to_range, unwrap_to_guide
 
 
@@ -23,14 +20,11 @@ class PhaseWrapping(Effect):
     stage = "readout"
     nominal = True
     summary = "range from the phasor's angle wraps at c/(2f)"
-    params = ()
 
-    def apply(self, x: np.ndarray, params: Mapping[str, Any],
-              ctx: RenderContext) -> np.ndarray:
+    def apply(self, x: np.ndarray, params: NoParams, ctx: RenderContext) -> np.ndarray:
         return phasor_to_range(x, ctx.mod_freq_hz)
 
-    @staticmethod
-    def unwrapped(x: np.ndarray, ctx: RenderContext) -> np.ndarray:
+    def bypass(self, x: np.ndarray, ctx: RenderContext) -> np.ndarray:
         """The readout when the effect is off: range unwrapped next to the true range."""
         guide = ctx.true_range_mm if ctx.true_range_mm is not None else np.full(x.shape, np.nan)
         return unwrap_to_guide(phasor_to_range(x, ctx.mod_freq_hz), guide, ctx.mod_freq_hz)

@@ -12,14 +12,13 @@ recorded agree. Exactly what the per-pixel linear calibration removes.
 from __future__ import annotations
 
 import functools
-from collections.abc import Mapping
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
 from ....camera import Intrinsics
 from ..context import RenderContext
-from ..effect import Effect, ParamSpec
+from ..effect import Effect, param
 
 _MASK64 = np.uint64(0xFFFFFFFFFFFFFFFF)
 
@@ -72,21 +71,26 @@ def offset_pattern(intrinsics: Intrinsics, seed: int, offset_mean_mm: float,
     return offset_mean_mm + offset_std_mm * n_offset, gain_std * n_gain
 
 
+@dataclass(frozen=True)
+class PixelOffsetParams:
+    """Parameters of :class:`PixelOffset`."""
+
+    offset_mean_mm: float = param(4.0, -20.0, 20.0, "mm", "offset common to all pixels")
+    offset_std_mm: float = param(2.0, 0.0, 20.0, "mm", "pixel-to-pixel offset spread")
+    gain_std: float = param(0.005, 0.0, 0.06, "1", "pixel-to-pixel gain spread")
+    seed: int = param(20160516, 0, 2**31 - 1, "1", "seed of the fixed pattern", fit=False)
+
+
 class PixelOffset(Effect):
     name = "pixel_offset"
     stage = "range"
     nominal = True
     summary = "fixed-pattern per-pixel range offset and gain"
-    params = (
-        ParamSpec("offset_mean_mm", 4.0, -20.0, 20.0, "mm", "offset common to all pixels"),
-        ParamSpec("offset_std_mm", 2.0, 0.0, 20.0, "mm", "pixel-to-pixel offset spread"),
-        ParamSpec("gain_std", 0.005, 0.0, 0.06, "1", "pixel-to-pixel gain spread"),
-        ParamSpec("seed", 20160516, 0, 2**31 - 1, "1", "seed of the fixed pattern", fit=False),
-    )
+    Params = PixelOffsetParams
 
-    def apply(self, x: np.ndarray, params: Mapping[str, Any],
+    def apply(self, x: np.ndarray, params: PixelOffsetParams,
               ctx: RenderContext) -> np.ndarray:
-        offset, gain = offset_pattern(ctx.intrinsics, int(params["seed"]),
-                                      float(params["offset_mean_mm"]),
-                                      float(params["offset_std_mm"]), float(params["gain_std"]))
+        offset, gain = offset_pattern(ctx.intrinsics, int(params.seed),
+                                      float(params.offset_mean_mm),
+                                      float(params.offset_std_mm), float(params.gain_std))
         return offset + (1.0 + gain) * x

@@ -12,13 +12,13 @@ its last entry. A reference image carries material 0 everywhere.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ..context import RenderContext
-from ..effect import Effect, ParamSpec
+from ..effect import Effect, param
 from ..phasor import phase_per_mm
 from .mixed_pixels import blur_phasor
 
@@ -29,25 +29,34 @@ def per_material(values: Any, material: int) -> float:
     return float(seq[min(max(material, 0), seq.size - 1)])
 
 
+@dataclass(frozen=True)
+class SubsurfaceParams:
+    """Parameters of :class:`Subsurface`: one entry per material (the last one for the rest)."""
+
+    delay_mm: tuple[float, ...] = param((3.0,), 0.0, 30.0, "mm",
+                                        "extra range of the subsurface part")
+    sigma_px: tuple[float, ...] = param((1.0,), 0.0, 6.0, "px",
+                                        "spatial spread of the subsurface part")
+    fraction: tuple[float, ...] = param((0.3,), 0.0, 1.0, "1",
+                                        "share of the light scattered below")
+
+
 class Subsurface(Effect):
     name = "subsurface"
     stage = "phasor"
     summary = "per-material extra delay and small spatial blur of the phasor"
-    params = (
-        ParamSpec("delay_mm", (3.0,), 0.0, 30.0, "mm", "extra range of the subsurface part"),
-        ParamSpec("sigma_px", (1.0,), 0.0, 6.0, "px", "spatial spread of the subsurface part"),
-        ParamSpec("fraction", (0.3,), 0.0, 1.0, "1", "share of the light scattered below"),
-    )
+    Params = SubsurfaceParams
+    mixes_pixels = True
 
-    def apply(self, x: np.ndarray, params: Mapping[str, Any],
+    def apply(self, x: np.ndarray, params: SubsurfaceParams,
               ctx: RenderContext) -> np.ndarray:
         out = x.copy()
         material = ctx.surface.material_id
         for m in np.unique(material[material >= 0]):
             mask = material == m
-            frac = per_material(params["fraction"], int(m))
-            delay = per_material(params["delay_mm"], int(m))
-            sigma = per_material(params["sigma_px"], int(m))
+            frac = per_material(params.fraction, int(m))
+            delay = per_material(params.delay_mm, int(m))
+            sigma = per_material(params.sigma_px, int(m))
             spread = blur_phasor(np.where(mask, x, 0.0), sigma)
             weight = blur_phasor(mask.astype(np.complex128), sigma).real
             with np.errstate(invalid="ignore", divide="ignore"):

@@ -8,31 +8,33 @@ motion; with the camera at rest (``ctx.motion is None`` or zero) the effect does
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
-from ...surface import SurfaceImage
 from ..context import RenderContext
-from ..effect import Effect, ParamSpec
-from ._geometry import moved_surface
+from ..effect import CameraMoveEffect, param
 
 
-class TimeOffset(Effect):
+@dataclass(frozen=True)
+class TimeOffsetParams:
+    """Parameters of :class:`TimeOffset`."""
+
+    offset_ms: float = param(0.0, -100.0, 100.0, "ms", "exposure time minus stamp (positive: "
+                             "the camera is ahead of its pose)")
+
+
+class TimeOffset(CameraMoveEffect):
     name = "time_offset"
-    stage = "geometry"
     summary = "ToF stamp vs pose offset: geometry seen from the pose Δt later along the motion"
-    params = (
-        ParamSpec("offset_ms", 0.0, -100.0, 100.0, "ms",
-                  "exposure time minus stamp (positive: the camera is ahead of its pose)"),
-    )
+    Params = TimeOffsetParams
 
-    def apply(self, x: SurfaceImage, params: Mapping[str, Any],
-              ctx: RenderContext) -> SurfaceImage:
+    def camera_move(self, params: TimeOffsetParams, ctx: RenderContext
+                    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(ω Δt, v Δt)`` of the camera's motion, None when it is at rest (no motion given)."""
         if ctx.motion is None:
-            return x
-        dt = 1e-3 * float(params["offset_ms"])
+            return None
+        dt = 1e-3 * float(params.offset_ms)
         rot = np.asarray(ctx.motion.angular_rad_s, dtype=np.float64) * dt
         trans = np.asarray(ctx.motion.linear_mm_s, dtype=np.float64) * dt
-        return moved_surface(x, rot, trans, ctx)
+        return rot, trans

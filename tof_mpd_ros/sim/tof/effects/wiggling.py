@@ -11,13 +11,12 @@ absorbed by the per-pixel linear calibration; the residual is a slow bow (see do
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..context import RenderContext
-from ..effect import Effect, ParamSpec
+from ..effect import Effect, param
 from ..phasor import phase_per_mm
 
 
@@ -28,20 +27,24 @@ def wiggle_mm(range_mm: np.ndarray, mod_freq_hz: float, a1: float, p1: float, a2
     return a1 * np.sin(4.0 * phi + p1) + a2 * np.sin(8.0 * phi + p2)
 
 
+@dataclass(frozen=True)
+class WigglingParams:
+    """Parameters of :class:`Wiggling`."""
+
+    a1_mm: float = param(3.0, 0.0, 20.0, "mm", "amplitude of the 4φ term")
+    p1_rad: float = param(0.5, -np.pi, np.pi, "rad", "phase of the 4φ term")
+    a2_mm: float = param(1.0, 0.0, 10.0, "mm", "amplitude of the 8φ term")
+    p2_rad: float = param(1.0, -np.pi, np.pi, "rad", "phase of the 8φ term")
+
+
 class Wiggling(Effect):
     name = "wiggling"
     stage = "range"
     nominal = True
     summary = "cyclic error in the phase (harmonics 4φ, 8φ), a few mm"
-    params = (
-        ParamSpec("a1_mm", 3.0, 0.0, 20.0, "mm", "amplitude of the 4φ term"),
-        ParamSpec("p1_rad", 0.5, -np.pi, np.pi, "rad", "phase of the 4φ term"),
-        ParamSpec("a2_mm", 1.0, 0.0, 10.0, "mm", "amplitude of the 8φ term"),
-        ParamSpec("p2_rad", 1.0, -np.pi, np.pi, "rad", "phase of the 8φ term"),
-    )
+    Params = WigglingParams
 
-    def apply(self, x: np.ndarray, params: Mapping[str, Any],
+    def apply(self, x: np.ndarray, params: WigglingParams,
               ctx: RenderContext) -> np.ndarray:
-        return x + wiggle_mm(x, ctx.mod_freq_hz, float(params["a1_mm"]),
-                             float(params["p1_rad"]), float(params["a2_mm"]),
-                             float(params["p2_rad"]))
+        return x + wiggle_mm(x, ctx.mod_freq_hz, float(params.a1_mm), float(params.p1_rad),
+                             float(params.a2_mm), float(params.p2_rad))
