@@ -9,7 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tof_mpd_ros.calibration import IntrinsicCalibration, fit_calibration
+from tof_mpd_ros.calibration import (
+    IntrinsicCalibration,
+    fit_calibration,
+    load_calibration,
+    save_calibration,
+)
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.cli import calibrate as calibrate_cli
 from tof_mpd_ros.errors import CalibrationError, InputError
@@ -113,6 +118,20 @@ def test_arrays_round_trip() -> None:
     with pytest.raises(CalibrationError, match="missing: c2"):
         IntrinsicCalibration.from_arrays({k: v for k, v in arrays.items() if k != "c2"})
 
+
+
+def test_saved_calibration_loads_back_and_replaces_the_old_file_whole(tmp_path: Path) -> None:
+    observed, amp, true, _ = _distorted_stack(5)
+    calib = IntrinsicCalibration.fit(observed, amp, true, amplitude_term="inverse")
+    save_calibration(tmp_path / "calib", calib)   # like np.savez: ".npz" is appended
+    path = tmp_path / "calib.npz"
+    back = load_calibration(path)
+    np.testing.assert_array_equal(back.apply(observed[0], amp[0]), calib.apply(observed[0], amp[0]))
+    identity = IntrinsicCalibration.identity(H, W)
+    save_calibration(path, identity)
+    np.testing.assert_array_equal(load_calibration(path).apply(observed[0], amp[0]),
+                                  identity.apply(observed[0], amp[0]))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["calib.npz"]  # no temporary left
 
 def _boards(seed: int = 0) -> tuple[list[ToFFrame], np.ndarray]:
     """12 checkerboard frames of a known per-pixel model; returns them and its c1."""

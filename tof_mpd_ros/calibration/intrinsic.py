@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from ..atomic_file import write_atomically
 from ..errors import CalibrationError, InputError
 from ..frame import ToFFrame
 from ..npz_file import read_npz
@@ -331,8 +332,14 @@ def fit_calibration(frames: Sequence[ToFFrame], **kwargs: Any) -> IntrinsicCalib
 
 
 def save_calibration(path: Path, calibration: IntrinsicCalibration) -> None:
-    """Write ``calibration`` as an ``.npz`` of :meth:`IntrinsicCalibration.to_arrays`."""
-    np.savez(path, **calibration.to_arrays())
+    """Write ``calibration`` as an ``.npz`` of :meth:`IntrinsicCalibration.to_arrays`,
+    atomically (a reader sees the old file or the new one); like ``np.savez``, ``.npz`` is
+    appended to a name without it."""
+    path = Path(path)
+    if not path.name.endswith(".npz"):
+        path = path.with_name(path.name + ".npz")
+    arrays = calibration.to_arrays()
+    write_atomically(path, lambda stream: np.savez(stream, **arrays))
 
 
 def load_calibration(path: Path) -> IntrinsicCalibration:
