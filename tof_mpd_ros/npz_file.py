@@ -5,7 +5,9 @@ before reading a byte of it (a header claiming 10^12 pixels asks for terabytes),
 layer raises whatever its damage calls for (``NotImplementedError``, ``RuntimeError``,
 ``zlib.error``, ...). Here each header is checked against the size of its member first, the data
 is read exactly (so the zip's CRC is checked), and every failure becomes the caller's typed error
-naming the file and the problem.
+naming the file and the problem. Every ``.npz`` a user hands the package (weights,
+calibrations, forest arrays, the NPZ interchange) goes through :func:`read_npz`, the one reader
+of untrusted files; the golden frames committed with the tests are read with ``np.load``.
 """
 
 from __future__ import annotations

@@ -3,7 +3,8 @@
 Everything that takes "a recording or an NPZ" (every ``tof-mpd`` command, the mismatch tool,
 the benchmarks) opens it with :func:`iter_frames`, and everything that writes "the same kind"
 with :func:`write_frames`, so both formats are told apart the same way everywhere: by a
-``.npz`` suffix in any letter case.
+``.npz`` suffix in any letter case. This is the package's one implementation of opening a
+frame file.
 """
 
 from __future__ import annotations
