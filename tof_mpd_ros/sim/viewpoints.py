@@ -22,21 +22,10 @@ from .scene import Scene, make_scene
 def plan_viewpoints(scene: Scene, rng: np.random.Generator,
                     config: ViewpointConfig | None = None,
                     params: URParams = UR5E) -> ViewpointPlan:
-    """``config.n_views`` reachable views of ``scene`` looking at its objects' centroid
-    (:func:`~tof_mpd_ros.arm.viewpoints.plan_views` on the scene's geometry).
-
-    Args:
-        scene: the scene (base frame, mm).
-        rng: source of randomness (the plan is a deterministic function of its state).
-        config: plan parameters (default :class:`~tof_mpd_ros.arm.viewpoints.ViewpointConfig`).
-        params: the arm.
-
-    Returns:
-        The plan, with every rejected candidate and its reason.
-
-    Raises:
-        InputError: ``n_views`` or ``n_height_bands`` is not positive.
-        SimulationError: fewer than ``n_views`` reachable views after ``max_candidates`` draws.
+    """``config.n_views`` reachable views of ``scene`` (base frame, mm) looking at its objects'
+    centroid: :func:`~tof_mpd_ros.arm.viewpoints.plan_views` (its arguments, result and errors)
+    on the scene's geometry; ``config`` None = the default
+    :class:`~tof_mpd_ros.arm.viewpoints.ViewpointConfig`.
     """
     return plan_views(scene.objects_centroid_mm(), scene.top_height_mm(), scene.table.height_mm,
                       rng, ViewpointConfig() if config is None else config, params)
