@@ -7,6 +7,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import pytest
 from oracles.analytic_scenes import box_on_table_scene, plane_scene, raycast
+from toy_effects import ToyOffset
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.frame import ToFFrame
@@ -53,22 +54,6 @@ class ToyDelay(Effect):
 
     def apply(self, x: np.ndarray, params: ToyDelayParams, ctx) -> np.ndarray:
         return x * np.exp(1j * phase_per_mm(ctx.mod_freq_hz) * params.delay_mm)
-
-
-@dataclass(frozen=True)
-class ToyOffsetParams:
-    offset_mm: float = param(3.0, -10.0, 10.0, "mm", "added to every range")
-
-
-class ToyOffset(Effect):
-    """A range-stage effect known only to this test."""
-
-    name = "toy_offset"
-    stage = "range"
-    Params = ToyOffsetParams
-
-    def apply(self, x: np.ndarray, params: ToyOffsetParams, ctx) -> np.ndarray:
-        return x + params.offset_mm
 
 
 @pytest.fixture

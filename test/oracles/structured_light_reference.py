@@ -15,8 +15,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from oracles.raycast_reference import visible_from
 
+from oracles.raycast_reference import visible_from
 from tof_mpd_ros.pose import invert_pose, make_pose, transform_points
 from tof_mpd_ros.sim.raycast import camera_rays, render_surface
 from tof_mpd_ros.sim.scene import Scene

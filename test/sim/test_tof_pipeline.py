@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
+import toy_effects
 from oracles.analytic_scenes import box_on_table_scene, raycast
 
 from tof_mpd_ros.camera import Intrinsics
@@ -15,9 +15,7 @@ from tof_mpd_ros.sim.tof import (
     EFFECTS,
     STAGE_ORDER,
     Action,
-    Effect,
     ToFConfig,
-    param,
     pipeline_steps,
     register_effect,
     render_from_reference,
@@ -29,20 +27,10 @@ K = Intrinsics.ds325().crop(40, 32)
 SCENE = box_on_table_scene(300.0, 80.0, 15.0, 0.5, box_albedo=0.3)
 
 
-@dataclass(frozen=True)
-class ToyOffsetParams:
-    offset_mm: float = param(3.0, -10.0, 10.0, "mm", "added to every range")
-
-
-class ToyOffset(Effect):
-    """A range-stage effect known only to this test."""
+class ToyOffset(toy_effects.ToyOffset):
+    """The tests' toy offset under a name of this module's own."""
 
     name = "toy_offset_sim"
-    stage = "range"
-    Params = ToyOffsetParams
-
-    def apply(self, x: np.ndarray, params: ToyOffsetParams, ctx) -> np.ndarray:
-        return x + params.offset_mm
 
 
 @pytest.fixture
