@@ -30,6 +30,7 @@ from .fit import (
     plain_params,
     score_fit,
 )
+from .frame_levels import FRAME_LEVEL_EFFECTS, frame_levels
 from .likelihood import REFERENCE_NOISE_MM, tile_t_statistic, total_sigma
 from .locate import locate, strata, stratum_facts
 from .predict import FramePredictor
@@ -106,6 +107,8 @@ class Analysis:
         unexplained: candidates that fitted best but are not taken, with why (a parameter at
             the edge of its range: the model does not explain this) and where the residual
             sits.
+        frame_levels: "round:effect" -> the held-out frames' residual levels before and after
+            a candidate of one offset per frame, judged on them (:mod:`.frame_levels`).
     """
 
     selected: list[str]
@@ -125,6 +128,7 @@ class Analysis:
     profile_facts: dict[str, Any] = field(default_factory=dict)
     profile_words: list[str] = field(default_factory=list)
     unexplained: list[dict[str, Any]] = field(default_factory=list)
+    frame_levels: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @property
     def parameters(self) -> dict[str, dict[str, float]]:
@@ -143,7 +147,9 @@ class Analysis:
                              "test_gain_mnats": round(1000 * r.test_gain, 3),
                              "penalty_mnats": round(1000 * r.penalty, 3),
                              "parameters": r.parameters,
-                             "evidence": self.evidence.get(f"{k + 1}:{r.effect}", r.note)})
+                             "evidence": self.evidence.get(f"{k + 1}:{r.effect}", r.note),
+                             **({"frame_levels": self.frame_levels[key]}
+                                if (key := f"{k + 1}:{r.effect}") in self.frame_levels else {})})
         return rows
 
 
@@ -268,6 +274,7 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
     analysis.profile_words = describe_profile(ToFConfig.nominal(), search.problem.base, facts,
                                               profile)
     analysis.unexplained = search.unexplained
+    analysis.frame_levels = search.frame_levels
     return analysis
 
 
@@ -315,6 +322,8 @@ class _Search:
     #: unit-box limits of profile effects searched in part of their range (the camera's
     #: windows: the albedo's interreflection, the lens's blur)
     profile_boxes: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
+    #: "round:effect" -> the held-out frames' levels of a candidate judged on them
+    frame_levels: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def greedy(self, candidates: Sequence[str], limit: int,
                boxes: dict[str, list[tuple[float, float]]] | None = None) -> list[str]:
@@ -359,9 +368,14 @@ class _Search:
         workflow, is a fit inside the camera's own window (a multipath gain the assumed units
         explain, a focused lens's blur) named as physics; ``boxed`` are the profile's fits of
         those windows, which are taken."""
+        past_significant = False
         for r in results:
-            if not _significant(r, threshold, self.min_t):
-                return None
+            if past_significant or not _significant(r, threshold, self.min_t):
+                # ranked by score, none further is significant by it; but an effect of one
+                # offset per frame is also judged on the frames' levels, where it shows
+                past_significant = True
+                if not self._by_frame_levels(r, k):
+                    continue
             if self.units_assumed and r.effect not in boxed and within_camera_window(r):
                 param, lo, hi = CAMERA_WINDOWS[r.effect]
                 self.unexplained.append({
@@ -384,6 +398,19 @@ class _Search:
                 "why": phrase("unexplained_why", {"case": "edge"}),
                 "where": self.location.get("flagged", [])[:3]})
         return None
+
+    def _by_frame_levels(self, r: FitResult, k: int) -> bool:
+        """Whether ``r`` (an effect of ``FRAME_LEVEL_EFFECTS``) explains how the held-out
+        frames' levels move (:mod:`.frame_levels`: their χ² is the significance test here, in
+        place of the per-pixel score and tile t) without making the held-out pixels worse
+        (a positive score); the levels are kept in ``frame_levels`` as evidence."""
+        if r.effect not in FRAME_LEVEL_EFFECTS or r.note:
+            return False
+        levels = frame_levels(self.problem, r.config)
+        if levels is None:
+            return False
+        self.frame_levels[f"{k + 1}:{r.effect}"] = levels.as_dict()
+        return levels.explained and r.score > 0
 
     def confirm(self, profile: list[str], given: ToFConfig) -> list[str]:
         """The profile effects still significant in the final model: each is put back to its

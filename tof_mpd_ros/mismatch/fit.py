@@ -23,6 +23,7 @@ from scipy import optimize
 from ..sim.tof import EFFECTS, ToFConfig
 from .data import Split
 from .likelihood import (
+    CORRELATION_PX,
     REFERENCE_NOISE_MM,
     best_shift,
     bic_penalty,
@@ -193,6 +194,27 @@ class Problem:
 
     def _raw_cost(self, pred: Prediction, i: int, shift: float = 0.0) -> np.ndarray:
         return nll(self.real_mm[i] - pred.range_mm - shift, self._sigma(pred, i))
+
+    def frame_level(self, i: int, config: ToFConfig | None, which: str = "test"
+                    ) -> tuple[float, float]:
+        """Frame ``i``'s residual level under ``config`` (None = base) beyond the level the
+        model is judged at (:meth:`level`), in mm, and its standard error in mm, over the
+        frame's ``which`` pixels; (NaN, NaN) without any.
+
+        The level is the Student-t location of the residual (:func:`.likelihood.best_shift`);
+        its error is the residual's robust spread (1.4826 MAD) over the square root of the
+        effective sample count (pixels / ``CORRELATION_PX``: residuals are spatially
+        correlated)."""
+        m = self.masks(which)[i]
+        pred = self.predictors[i].predict(config)
+        r = (self.real_mm[i] - pred.range_mm)[m]
+        ok = np.isfinite(r)
+        if not ok.any():
+            return float("nan"), float("nan")
+        level = best_shift(r, self._sigma(pred, i)[m])
+        spread = 1.4826 * float(np.median(np.abs(r[ok] - np.median(r[ok]))))
+        n_eff = max(ok.sum() / CORRELATION_PX, 1.0)
+        return level - self.level(config), spread / float(np.sqrt(n_eff))
 
     def total_cost(self, config: ToFConfig | None, which: str) -> tuple[float, int]:
         """(sum of the cost over the ``which`` pixels, number of pixels)."""
