@@ -258,7 +258,13 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
                      units_assumed=not monitor)
     profile, scene = (([], list(candidates)) if monitor
                       else _camera_first(search, candidates))
-    selected = search.greedy(scene, max_effects) if max_effects > 0 else []
+    # what the camera has but was not significant beside nothing else may be once the windows
+    # and the physics are fitted: it competes again, and joins the profile if it wins
+    rejoin = [] if monitor else [c for c in candidates if c in PROFILE_EFFECTS
+                                 and c not in profile]
+    selected = search.greedy(scene + rejoin, max_effects, rejoin=rejoin) \
+        if max_effects > 0 else []
+    profile = profile + search.joined
     # interreflection beyond the albedo's doubt is named physics, no longer the profile's
     profile = [e for e in profile if e not in selected]
     # what the physics on top took back from the camera's profile leaves it where it was
@@ -315,6 +321,8 @@ class _Search:
     refit: list[str] = field(default_factory=list)
     #: every effect taken so far, in order
     taken: list[str] = field(default_factory=list)
+    #: profile effects that joined the profile in a scene round (see :meth:`greedy`)
+    joined: list[str] = field(default_factory=list)
     #: one-shot: the amplitude units were chosen by the grey world, so albedo, hence the
     #: interreflection's strength, is known only within ``UNITS_DOUBT``, and the camera's own
     #: values (its windows) are the profile's
@@ -326,22 +334,28 @@ class _Search:
     frame_levels: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def greedy(self, candidates: Sequence[str], limit: int,
-               boxes: dict[str, list[tuple[float, float]]] | None = None) -> list[str]:
+               boxes: dict[str, list[tuple[float, float]]] | None = None,
+               rejoin: Collection[str] = ()) -> list[str]:
         """Take up to ``limit`` of ``candidates``, one per round, while one is significant
-        (``boxes``: candidates searched in part of their range)."""
+        (``boxes``: candidates searched in part of their range). A winner in ``rejoin`` (a
+        profile effect not significant in the profile's own rounds) joins the profile
+        (``joined``, refitted from then on) instead of being named, and does not count."""
         boxes = boxes or {}
         taken: list[str] = []
-        for _ in range(limit):
+        used: list[str] = []
+        while len(taken) < limit:
             k = len(self.rounds)
             results = []
             for name in candidates:
-                if name in taken:
+                if name in used:
                     continue
                 box = boxes.get(name)
                 results.append(self._with_refit(fit_effect(self.problem, name, box=box),
                                                 box))
                 if self.progress:
                     self.progress(name)
+            if not results:
+                break
             results = rank(results, self.problem)
             self.rounds.append(results)
             for r in results:
@@ -353,8 +367,13 @@ class _Search:
             best = self._first_explained(results, threshold, k, boxed=set(boxes))
             if best is None:
                 break
-            taken.append(best.effect)
+            used.append(best.effect)
             self.taken.append(best.effect)
+            if best.effect in rejoin:
+                self.joined.append(best.effect)
+                self.refit = [*self.refit, best.effect]
+            else:
+                taken.append(best.effect)
             _log.info("round %d: %s (score %.1f, t %.1f)", k + 1, best.effect, best.score,
                       best.t_stat)
             self._rebase(best.config)
