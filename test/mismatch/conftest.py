@@ -15,6 +15,9 @@ from oracles.analytic_scenes import box_on_table_scene, raycast
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.frame import ToFFrame
+from tof_mpd_ros.mismatch.data import camera_motion, split_frames
+from tof_mpd_ros.mismatch.fit import Problem
+from tof_mpd_ros.mismatch.predict import FramePredictor
 from tof_mpd_ros.pose import rotvec_to_matrix
 from tof_mpd_ros.sim.tof import ToFConfig, render_tof
 
@@ -82,3 +85,20 @@ def sweep():
         return cache[key]
 
     return build
+
+
+def make_problem(frames: list[ToFFrame], config: ToFConfig) -> Problem:
+    """The analysis's fitting problem for ``frames`` around the model ``config`` (every pixel
+    with a real and a predicted range usable; alternate frames train / held-out)."""
+    predictors = [FramePredictor(f, config, frame_index=i, motion=m)
+                  for i, (f, m) in enumerate(zip(frames, camera_motion(frames), strict=True))]
+    real = [np.asarray(f.range_mm, dtype=np.float64) for f in frames]
+    usable = [np.isfinite(r) & np.isfinite(p.predict().range_mm)
+              for r, p in zip(real, predictors, strict=True)]
+    return Problem(real, predictors, split_frames(frames), usable)
+
+
+@pytest.fixture(scope="session")
+def problem_of():
+    """``problem_of(frames, config)``: :func:`make_problem`."""
+    return make_problem

@@ -10,14 +10,12 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.mismatch import analyse
 from tof_mpd_ros.mismatch.analysis import MIN_SCORE
-from tof_mpd_ros.mismatch.data import camera_motion, split_frames
-from tof_mpd_ros.mismatch.fit import Problem, fit_effect
+from tof_mpd_ros.mismatch.fit import fit_effect
 from tof_mpd_ros.mismatch.frame_levels import (
     MAX_CHI2_LEFT,
     MIN_CHI2_GAIN,
@@ -25,7 +23,6 @@ from tof_mpd_ros.mismatch.frame_levels import (
     frame_levels,
     judged_by_frame_levels,
 )
-from tof_mpd_ros.mismatch.predict import FramePredictor
 from tof_mpd_ros.sim.tof import ToFConfig
 
 #: a camera 3× noisier than the nominal cell, with 3 mm of amplitude-independent jitter
@@ -36,20 +33,11 @@ MEDIUM = Intrinsics.from_fov(64, 48, 74.0)
 DRIFT = {"max_mm": -9.0, "tau_frames": 8.0}
 
 
-def _problem(frames, config: ToFConfig) -> Problem:
-    predictors = [FramePredictor(f, config, frame_index=i, motion=m)
-                  for i, (f, m) in enumerate(zip(frames, camera_motion(frames), strict=True))]
-    real = [np.asarray(f.range_mm, dtype=np.float64) for f in frames]
-    usable = [np.isfinite(r) & np.isfinite(p.predict().range_mm)
-              for r, p in zip(real, predictors, strict=True)]
-    return Problem(real, predictors, split_frames(frames), usable)
-
-
-def test_frame_level_measures_a_known_offset(sweep):
+def test_frame_level_measures_a_known_offset(sweep, problem_of):
     """Adding c mm to frame 3's real range moves its measured level by c, within 3 standard
     errors; the error is under a millimetre even on 48 × 36 pixels of the noisy camera."""
     frames = sweep({}, camera=NOISY, seed=5)
-    problem = _problem(frames, NOISY)
+    problem = problem_of(frames, NOISY)
     before, se = problem.frame_level(3, None)
     problem.real_mm[3] = problem.real_mm[3] + 2.5
     after, se_after = problem.frame_level(3, None)
@@ -70,17 +58,17 @@ def test_levels_statistic():
     assert not FrameLevels((1,), (3.0,), (0.0,), (0.1,)).explained
 
 
-def test_a_fitted_drift_explains_the_levels_a_control_does_not(sweep):
+def test_a_fitted_drift_explains_the_levels_a_control_does_not(sweep, problem_of):
     """The drift fitted on the even frames predicts the odd frames' levels; on the same
     camera without a drift, the best drift fit explains nothing of them."""
-    drifting = _problem(sweep({"temperature_drift": DRIFT}, camera=NOISY, seed=5), NOISY)
+    drifting = problem_of(sweep({"temperature_drift": DRIFT}, camera=NOISY, seed=5), NOISY)
     fit = fit_effect(drifting, "temperature_drift")
     levels = frame_levels(drifting, fit.config)
     assert levels is not None and levels.explained, levels
     assert judged_by_frame_levels(drifting, "temperature_drift", fit.config)
     # the odd frames' levels step by about the drift: 1 mm or more from frame 1 to 5
     assert abs(levels.before_mm[0] - levels.before_mm[-1]) > 1.0
-    still = _problem(sweep({}, camera=NOISY, seed=5), NOISY)
+    still = problem_of(sweep({}, camera=NOISY, seed=5), NOISY)
     fit = fit_effect(still, "temperature_drift")
     assert not judged_by_frame_levels(still, "temperature_drift", fit.config)
     # only an effect of one offset per frame is judged so

@@ -221,3 +221,33 @@ def test_interreflection_beyond_any_plausible_albedo_is_named(sweep):
     assert result.selected == ["multipath"] and "multipath" not in result.profile
     assert result.parameters["multipath"]["gain"] == pytest.approx(3.0, rel=0.1)
     assert "albedo_scale" not in result.profile_facts
+
+
+def test_a_profile_effect_winning_a_scene_round_joins_the_profile(sweep, problem_of,
+                                                                  monkeypatch):
+    """A camera effect that was not significant in the profile's own rounds competes again in
+    the scene rounds (the one-shot workflow): if it wins one, it joins the profile (refitted
+    beside every later candidate) instead of being named, and the scene's limit of effects
+    still allows one named effect. Canned fits make the ranking known."""
+    from tof_mpd_ros.mismatch import analysis
+    from tof_mpd_ros.mismatch.features import all_descriptors
+
+    frames = sweep({})
+    problem = problem_of(frames, NOMINAL)
+    scores = {"wiggling": 40.0, "lens_scatter": 30.0, "hand_eye": 12.0}
+
+    def canned(p, name, box=None):
+        return FitResult(name, p.base, {}, 1, score=scores[name], t_stat=10.0)
+
+    monkeypatch.setattr(analysis, "fit_effect", canned)
+    descriptors = all_descriptors(problem.predictors, [p.motion for p in problem.predictors])
+    search = analysis._Search(problem, descriptors, {}, 15.0, 3.0, None)
+    taken = search.greedy(["lens_scatter", "hand_eye", "wiggling"], 1, rejoin=["wiggling"])
+    assert search.joined == ["wiggling"] and search.refit == ["wiggling"]
+    assert taken == ["lens_scatter"] and search.taken == ["wiggling", "lens_scatter"]
+    # the rounds: wiggling won the first, lens scatter the second (above the later rounds'
+    # threshold); the limit of one named effect ended the search
+    assert [rnd[0].effect for rnd in search.rounds] == ["wiggling", "lens_scatter"]
+    # without the rejoin, the wiggle would have been named
+    plain = analysis._Search(problem, descriptors, {}, 15.0, 3.0, None)
+    assert plain.greedy(["lens_scatter", "hand_eye", "wiggling"], 1) == ["wiggling"]
