@@ -50,7 +50,23 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     dataset.add_argument("--spp", type=int, default=64,
                          help="path tracer samples per pixel (16, 32, 48, 64 or a multiple of "
                               "64; default 64)")
+    dataset.add_argument("--shard", metavar="I/N", default=None,
+                         help="render only the I-th of N disjoint slices (0-based: scenes and "
+                              "calibration chunks dealt round-robin), e.g. one SLURM array "
+                              "task each; join them with `tof-mpd sim merge`")
     dataset.set_defaults(func=run_dataset)
+
+    merge = commands.add_parser(
+        "merge", help="join the shards of a dataset rendered with --shard",
+        description="Check that SHARD directories (each from `tof-mpd sim dataset --shard I/N` "
+                    "with the same spec, seed and renderer) make one complete dataset — every "
+                    "slice once, every scene of each slice present — and write it to OUT: the "
+                    "same recordings, message for message, as one unsharded run.",
+        epilog="example: tof-mpd sim merge -o data/ shards/0 shards/1 shards/2 shards/3")
+    add_output(merge, "output directory (must not exist)")
+    merge.add_argument("shards", type=Path, nargs="+", metavar="SHARD",
+                       help="shard directories")
+    merge.set_defaults(func=run_merge)
 
     predict = commands.add_parser(
         "predict", help="predict the ToF measurement of each frame from its reference",
@@ -108,14 +124,31 @@ def _cell(args: argparse.Namespace):
 
 
 def run_dataset(args: argparse.Namespace) -> int:
-    from ..sim.dataset import generate_dataset
+    from ..sim.dataset import Shard, generate_dataset
 
     if args.output.exists():
         raise InputError(f"{args.output} already exists; choose a new directory")
+    try:
+        shard = None if args.shard is None else Shard.parse(args.shard)
+    except ValueError as err:
+        raise InputError(f"--shard: {err}") from err
     spec = _spec(args)
-    summary = generate_dataset(args.output, spec, workers=args.workers, cell=_cell(args))
+    summary = generate_dataset(args.output, spec, workers=args.workers, cell=_cell(args),
+                               shard=shard)
     print(json.dumps({"out": str(args.output), "renderer": summary["renderer"]["name"],
-                      "frames": summary["frames"], "seconds": summary["seconds"]}))
+                      "frames": summary["frames"], "seconds": summary["seconds"],
+                      **({"shard": args.shard} if shard else {})}))
+    return 0
+
+
+def run_merge(args: argparse.Namespace) -> int:
+    from ..sim.dataset import merge_dataset
+
+    if args.output.exists():
+        raise InputError(f"{args.output} already exists; choose a new directory")
+    summary = merge_dataset(args.output, args.shards)
+    print(json.dumps({"out": str(args.output), "shards": len(args.shards),
+                      "frames": summary["frames"]}))
     return 0
 
 

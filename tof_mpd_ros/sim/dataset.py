@@ -10,7 +10,10 @@ A dataset directory holds three recordings (rosbag2 MCAP) and a summary:
   and timings.
 
 Every scene draws from its own generator ``default_rng([seed, split, scene])``, so scenes are
-independent of each other and of the number of worker processes.
+independent of each other and of the number of worker processes. That also lets a cluster fan
+the work out: ``generate_dataset(..., shard=Shard(i, n))`` renders the i-th of n disjoint slices
+(scenes and calibration chunks dealt round-robin), and :func:`merge_dataset` checks that the
+slices make one complete dataset and writes it, the same frames as one unsharded run.
 
 The cell's renderer (``SimCell.renderer``) picks the scenes' material set: a path-traced dataset
 (``"pathtrace"``) draws the same objects at the same places as the built-in one of the same seed,
@@ -25,8 +28,9 @@ import json
 import logging
 import multiprocessing as mp
 import os
+import shutil
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -34,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..arm.viewpoints import ViewpointConfig
+from ..errors import InputError
 from ..frame import ToFFrame
 from .cell import SimCell
 from .checkerboard import calibration_poses
@@ -130,20 +135,51 @@ def capture_calibration(spec: DatasetSpec, cell: SimCell | None = None,
             for i in range(start, stop)]
 
 
-def _jobs(spec: DatasetSpec) -> list[tuple[str, int]]:
+#: checkerboard captures rendered per task
+CALIBRATION_CHUNK = 50
+
+
+@dataclass(frozen=True)
+class Shard:
+    """Slice ``index`` of ``count`` of a dataset's tasks (0-based): every ``count``-th task from
+    the ``index``-th, so each slice gets a share of train and test scenes and calibration."""
+
+    index: int = 0
+    count: int = 1
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.index < self.count:
+            raise ValueError(f"shard {self.index}/{self.count}: need 0 <= I < N")
+
+    @classmethod
+    def parse(cls, text: str) -> Shard:
+        """``"I/N"`` -> ``Shard(I, N)``."""
+        try:
+            index, count = (int(x) for x in text.split("/"))
+        except ValueError:
+            raise ValueError(f"shard {text!r}: expected I/N, e.g. 0/4") from None
+        return cls(index, count)
+
+    def take(self, tasks: list[tuple[str, int]]) -> list[tuple[str, int]]:
+        return tasks[self.index::self.count]
+
+
+def dataset_tasks(spec: DatasetSpec) -> list[tuple[str, int]]:
+    """Every task of ``spec`` in order: ``(split, scene)`` for the scenes, then
+    ``("calibration", first capture)`` per chunk of ``CALIBRATION_CHUNK`` captures."""
     return ([("train", i) for i in range(spec.n_train_scenes)]
-            + [("test", i) for i in range(spec.n_test_scenes)])
+            + [("test", i) for i in range(spec.n_test_scenes)]
+            + [("calibration", i) for i in range(0, spec.n_calibration, CALIBRATION_CHUNK)])
 
 
-def _run_job(job: tuple[str, int], spec: DatasetSpec, cell: SimCell | None) -> SceneCapture:
-    return capture_scene(job[0], job[1], spec, cell)
-
-
-def _run_calibration_chunk(chunk: tuple[int, int], spec: DatasetSpec,
-                           cell: SimCell | None) -> SceneCapture:
+def _run_task(task: tuple[str, int], spec: DatasetSpec, cell: SimCell | None) -> SceneCapture:
+    split, index = task
+    if split != "calibration":
+        return capture_scene(split, index, spec, cell)
     start = time.perf_counter()
+    chunk = (index, min(index + CALIBRATION_CHUNK, spec.n_calibration))
     frames = capture_calibration(spec, cell, chunk=chunk)
-    return SceneCapture("calibration", chunk[0], frames, [], [], time.perf_counter() - start)
+    return SceneCapture("calibration", index, frames, [], [], time.perf_counter() - start)
 
 
 def _init_worker(threads: int, pathtrace: bool = False) -> None:
@@ -160,22 +196,21 @@ def _init_worker(threads: int, pathtrace: bool = False) -> None:
         drjit.set_thread_count(threads)
 
 
-def iter_captures(spec: DatasetSpec, *, workers: int = 1,
-                  cell: SimCell | None = None) -> Iterator[SceneCapture]:
-    """Every scene (train, then test) and the calibration captures in chunks, in order.
+def iter_captures(spec: DatasetSpec, *, workers: int = 1, cell: SimCell | None = None,
+                  shard: Shard = Shard()) -> Iterator[SceneCapture]:
+    """Every scene (train, then test) and the calibration captures in chunks, in order
+    (:func:`dataset_tasks`; of ``shard``'s slice only).
 
     Args:
         spec: what to generate.
         workers: processes; 1 renders in this process.
         cell: the simulated cell (None = the nominal one).
+        shard: the slice of the tasks to run (default all).
     """
-    chunks = [(i, min(i + 50, spec.n_calibration)) for i in range(0, spec.n_calibration, 50)]
-    tasks: list[tuple[Callable, tuple]] = ([(_run_job, (job, spec, cell)) for job in _jobs(spec)]
-                                           + [(_run_calibration_chunk, (c, spec, cell))
-                                              for c in chunks])
+    tasks = shard.take(dataset_tasks(spec))
     if workers <= 1:
-        for fn, args in tasks:
-            yield fn(*args)
+        for task in tasks:
+            yield _run_task(task, spec, cell)
         return
     # spawn, not fork: numba's threading layer in a parent that already rendered is not
     # fork-safe. The workers share the cores, so each runs its kernels on its share of them
@@ -184,7 +219,7 @@ def iter_captures(spec: DatasetSpec, *, workers: int = 1,
     pathtrace = cell is not None and cell.renderer == "pathtrace"
     with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn"),
                              initializer=_init_worker, initargs=(threads, pathtrace)) as pool:
-        futures = [pool.submit(fn, *args) for fn, args in tasks]
+        futures = [pool.submit(_run_task, task, spec, cell) for task in tasks]
         for future in futures:  # in submission order, so recordings are written in order
             yield future.result()
 
@@ -205,8 +240,9 @@ def renderer_summary(cell: SimCell | None) -> dict:
 
 def generate_dataset(out_dir: str | Path, spec: DatasetSpec, *, workers: int = 1,
                      compression: str = "zstd", progress: bool = True,
-                     cell: SimCell | None = None) -> dict:
-    """Render the dataset into ``out_dir`` (which must not exist yet).
+                     cell: SimCell | None = None, shard: Shard | None = None) -> dict:
+    """Render the dataset (or ``shard``'s slice of it) into ``out_dir`` (which must not exist
+    yet). A shard's ``dataset.json`` names its slice and tasks, for :func:`merge_dataset`.
 
     Returns:
         The summary written to ``dataset.json``.
@@ -219,36 +255,143 @@ def generate_dataset(out_dir: str | Path, spec: DatasetSpec, *, workers: int = 1
     if out.exists():
         raise FileExistsError(f"{out} already exists")
     renderer = renderer_summary(cell)  # loads the path tracer first, if there is one
+    tasks = (shard or Shard()).take(dataset_tasks(spec))
     out.mkdir(parents=True, exist_ok=False)
-    names = {"train": "md_train", "test": "md_test", "calibration": "calibration"}
     writers = {split: RecordingWriter(out / name, compression=compression)
-               for split, name in names.items()}
+               for split, name in RECORDINGS.items()}
     summary: dict = {"spec": asdict(spec), "renderer": renderer,
-                     "recordings": names, "scenes": [], "seconds": 0.0}
-    total = spec.n_train_scenes + spec.n_test_scenes + -(-spec.n_calibration // 50)
+                     "recordings": dict(RECORDINGS), "scenes": [], "seconds": 0.0}
+    if shard is not None:
+        summary["shard"] = {"index": shard.index, "count": shard.count,
+                            "tasks": [list(t) for t in tasks]}
+    calibration_frames = 0
     start = time.perf_counter()
     try:
         for writer in writers.values():
             writer.__enter__()
-        with tqdm(total=total, desc="simulating cell", unit="scene", disable=not progress) as bar:
-            for capture in iter_captures(spec, workers=workers, cell=cell):
+        desc = "simulating cell" + (f" (shard {shard.index}/{shard.count})" if shard else "")
+        with tqdm(total=len(tasks), desc=desc, unit="task", disable=not progress) as bar:
+            for capture in iter_captures(spec, workers=workers, cell=cell,
+                                         shard=shard or Shard()):
                 for frame in capture.frames:
                     writers[capture.split].write_frame(frame)
-                if capture.split != "calibration":
-                    summary["scenes"].append({
-                        "split": capture.split, "scene": capture.scene,
-                        "objects": capture.object_ids, "frames": len(capture.frames),
-                        "first_stamp_ns": capture.frames[0].stamp_ns,
-                        "rejected_views": capture.rejected_views,
-                        "seconds": round(capture.seconds, 2)})
+                if capture.split == "calibration":
+                    calibration_frames += len(capture.frames)
+                else:
+                    summary["scenes"].append(_scene_entry(capture))
                 bar.update(1)
     finally:
         for writer in writers.values():
             writer.__exit__(None, None, None)
     summary["seconds"] = round(time.perf_counter() - start, 1)
-    summary["frames"] = {split: sum(s["frames"] for s in summary["scenes"]
-                                    if s["split"] == split) for split in ("train", "test")}
-    summary["frames"]["calibration"] = spec.n_calibration
+    summary["frames"] = _frame_counts(summary["scenes"], calibration_frames)
     (out / "dataset.json").write_text(json.dumps(summary, indent=2))
     log.info("dataset written to %s in %.0f s", out, summary["seconds"])
     return summary
+
+
+#: split -> recording directory of a dataset
+RECORDINGS = {"train": "md_train", "test": "md_test", "calibration": "calibration"}
+
+
+def _scene_entry(capture: SceneCapture) -> dict:
+    return {"split": capture.split, "scene": capture.scene, "objects": capture.object_ids,
+            "frames": len(capture.frames), "first_stamp_ns": capture.frames[0].stamp_ns,
+            "rejected_views": capture.rejected_views, "seconds": round(capture.seconds, 2)}
+
+
+def _frame_counts(scenes: Sequence[dict], calibration_frames: int) -> dict[str, int]:
+    counts = {split: sum(s["frames"] for s in scenes if s["split"] == split)
+              for split in ("train", "test")}
+    counts["calibration"] = calibration_frames
+    return counts
+
+
+def merge_dataset(out_dir: str | Path, shard_dirs: Sequence[str | Path], *,
+                  compression: str = "zstd") -> dict:
+    """Check that ``shard_dirs`` (each written by ``generate_dataset(..., shard=...)``) make
+    one complete dataset, and write it into ``out_dir``: the same recordings, message for
+    message, as one unsharded run, and its ``dataset.json`` (``merged_from`` names the
+    shards).
+
+    Raises:
+        InputError: a shard without its ``dataset.json`` (unfinished) or not a shard; shards
+            of different specs, renderers or counts; a shard missing or given twice; a
+            shard's tasks not its slice, or a scene of its slice missing.
+        FileExistsError: ``out_dir`` exists.
+    """
+    from ..recordings.merge import merge_recordings
+
+    out = Path(out_dir)
+    if out.exists():
+        raise FileExistsError(f"{out} already exists")
+    shards = _read_shards(shard_dirs)
+    first = shards[0][1]
+    spec = DatasetSpec(**first["spec"])
+    scenes = sorted((s for _, summary in shards for s in summary["scenes"]),
+                    key=lambda s: (SPLIT_IDS[s["split"]], s["scene"]))
+    frames = _frame_counts(scenes, spec.n_calibration)
+    out.mkdir(parents=True)
+    try:
+        for split, name in RECORDINGS.items():
+            log.info("merging %s of %d shards", name, len(shards))
+            counts = merge_recordings(out / name, [path / name for path, _ in shards],
+                                      compression=compression)
+            # every frame writes one message per topic
+            if max(counts.values(), default=0) != frames[split]:
+                raise InputError(f"the shards' {name} recordings hold "
+                                 f"{max(counts.values(), default=0)} frames, their summaries "
+                                 f"{frames[split]}")
+    except BaseException:
+        shutil.rmtree(out, ignore_errors=True)  # no half-merged dataset is left behind
+        raise
+    summary = {"spec": asdict(spec), "renderer": first["renderer"],
+               "recordings": dict(RECORDINGS), "scenes": scenes,
+               "seconds": round(sum(sm["seconds"] for _, sm in shards), 1),
+               "frames": frames, "merged_from": [{"path": str(path), "index": sm["shard"]["index"]}
+                               for path, sm in shards]}
+    (out / "dataset.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def _read_shards(shard_dirs: Sequence[str | Path]) -> list[tuple[Path, dict]]:
+    """The shards' summaries, in shard order, checked to make one complete dataset."""
+    if not shard_dirs:
+        raise InputError("nothing to merge: no shard directories given")
+    shards = []
+    for d in map(Path, shard_dirs):
+        meta = d / "dataset.json"
+        if not meta.is_file():
+            raise InputError(f"{d}: no dataset.json (not a dataset, or its shard did not "
+                             "finish)")
+        summary = json.loads(meta.read_text())
+        if "shard" not in summary:
+            raise InputError(f"{d}: not a shard (made without --shard)")
+        shards.append((d, summary))
+    shards.sort(key=lambda x: x[1]["shard"]["index"])
+    first = shards[0][1]
+    count = first["shard"]["count"]
+    for d, summary in shards:
+        for key in ("spec", "renderer"):
+            if summary[key] != first[key]:
+                raise InputError(f"{d}: another {key} than {shards[0][0]}'s: not shards of "
+                                 "one dataset")
+        if summary["shard"]["count"] != count:
+            raise InputError(f"{d}: shard of {summary['shard']['count']}, not of {count}")
+    indices = [summary["shard"]["index"] for _, summary in shards]
+    missing = sorted(set(range(count)) - set(indices))
+    twice = sorted({i for i in indices if indices.count(i) > 1})
+    if missing or twice:
+        raise InputError(f"shards of {count}: missing {missing or 'none'}, given twice "
+                         f"{twice or 'none'}")
+    tasks = dataset_tasks(DatasetSpec(**first["spec"]))
+    for d, summary in shards:
+        expected = Shard(summary["shard"]["index"], count).take(tasks)
+        if [tuple(t) for t in summary["shard"]["tasks"]] != expected:
+            raise InputError(f"{d}: its tasks are not shard "
+                             f"{summary['shard']['index']}/{count}'s slice")
+        have = {(s["split"], s["scene"]) for s in summary["scenes"]}
+        lost = [t for t in expected if t[0] != "calibration" and tuple(t) not in have]
+        if lost:
+            raise InputError(f"{d}: scenes {lost} of its slice are missing")
+    return shards
