@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 
 from .output import add_output
@@ -93,7 +94,11 @@ def run_train(args: argparse.Namespace) -> int:
     model, history = train(frames, calibration, config, seed=args.seed,
                            checkpoint_dir=args.checkpoint_dir, weights_path=args.output,
                            overwrite=args.overwrite)
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if int(os.environ.get("RANK", "0")) != 0:
+        return 0  # under torchrun, rank 0 writes the summary (and the weights)
     summary = {"weights": str(args.output), "frames": len(frames), "epochs": len(history),
+               "world": world,
                "final": history[-1] if history else {}, "history": history,
                "target_clip_mm": model.metadata.get("target_clip_mm"),
                "edge_thresholds": model.metadata.get("edge_thresholds"),

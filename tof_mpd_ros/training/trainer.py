@@ -37,6 +37,7 @@ see ``--max-samples-per-frame``).
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import math
@@ -60,6 +61,17 @@ from ..correction.pipeline import CorrectionModel, GeodesicParams
 from ..correction.weights import save_weights
 from ..errors import InputError, WeightsError
 from ..frame import ToFFrame
+from .distributed import (
+    Ranks,
+    barrier,
+    check_in_step,
+    finish,
+    rank_batch_size,
+    shard_pixels,
+    start,
+    sum_over_ranks,
+    wrap,
+)
 from .edge_thresholds import choose_edge_thresholds, with_thresholds
 from .samples import (
     TrainingData,
@@ -199,6 +211,11 @@ class _Nets(torch.nn.Module):
     def range_heads(self) -> list[RangeRecoveryNet]:
         return [self.range_net, *self.other_range_nets]
 
+    def forward(self, feats: torch.Tensor) -> tuple[list[torch.Tensor], torch.Tensor]:
+        """Every F head's normalised output (B,) and the G logits (B, 4, 2) of ``feats``
+        (B, n_features): one forward through this module, as DDP needs."""
+        return [f.normalised(feats) for f in self.range_heads], self.boundary_nets(feats)
+
 
 def _class_weights(data: TrainingData, flat: torch.Tensor, cfg: TrainConfig) -> torch.Tensor:
     """(2, 4) loss weights indexed by [label, head] (see the module docstring)."""
@@ -214,18 +231,24 @@ def _class_weights(data: TrainingData, flat: torch.Tensor, cfg: TrainConfig) -> 
     return weights
 
 
-def _losses(nets: _Nets, feats: torch.Tensor, target: torch.Tensor, group: torch.Tensor,
-            weights: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _losses(model: torch.nn.Module, clips: Sequence[float], feats: torch.Tensor,
+            target: torch.Tensor, group: torch.Tensor, weights: torch.Tensor
+            ) -> tuple[torch.Tensor, torch.Tensor]:
     """(F loss, G loss) of one batch: MSE on clip(t, ±T) / T summed over the F heads (each its
-    own T), weighted cross entropy averaged over the G heads."""
-    loss_f = sum(tnf.mse_loss(f.normalised(feats), target.clamp(-f.target_clip_mm,
-                                                                  f.target_clip_mm)
-                              / f.target_clip_mm) for f in nets.range_heads)
-    logits = nets.boundary_nets(feats)                                   # (B, 4, 2)
-    labels = (group[:, None] == torch.arange(N_ORIENTATIONS)).long()     # (B, 4)
+    own T in ``clips``), weighted cross entropy averaged over the G heads. ``model`` is the
+    :class:`_Nets` or its DDP wrapper."""
+    f_out, logits = model(feats)                                         # [(B,)], (B, 4, 2)
+    loss_f = sum(tnf.mse_loss(out, target.clamp(-t, t) / t)
+                 for out, t in zip(f_out, clips, strict=True))
+    orientations = torch.arange(N_ORIENTATIONS, device=feats.device)
+    labels = (group[:, None] == orientations).long()                     # (B, 4)
     ce = tnf.cross_entropy(logits.reshape(-1, 2), labels.reshape(-1), reduction="none")
-    w = weights[labels, torch.arange(N_ORIENTATIONS)]
+    w = weights[labels, orientations]
     return loss_f, (ce * w.reshape(-1)).mean()
+
+
+def _clips(nets: _Nets) -> list[float]:
+    return [f.target_clip_mm for f in nets.range_heads]
 
 
 def _chunks(data: TrainingData, flat: torch.Tensor, size: int, prefetch: bool
@@ -253,20 +276,26 @@ def _epoch_generator(seed: int, epoch: int) -> torch.Generator:
     return torch.Generator().manual_seed(seed * 1_000_003 + epoch)
 
 
-def _run_epoch(nets: _Nets, opt: torch.optim.Optimizer, data: TrainingData, train_ids: list[int],
-               weights: torch.Tensor, cfg: TrainConfig, seed: int, epoch: int, bar: Any
+def _run_epoch(model: torch.nn.Module, clips: Sequence[float], opt: torch.optim.Optimizer,
+               data: TrainingData, train_ids: list[int], weights: torch.Tensor,
+               cfg: TrainConfig, seed: int, epoch: int, bar: Any, ranks: Ranks
                ) -> dict[str, float]:
-    flat = sample_pixels(data, train_ids, cfg.max_samples_per_frame,
-                         _epoch_generator(seed, epoch))
-    nets.train()
+    """One epoch of SGD over this rank's share of the epoch's pixels (all of them in one
+    process); the losses and counts in the returned stats are over every rank."""
+    flat = shard_pixels(sample_pixels(data, train_ids, cfg.max_samples_per_frame,
+                                      _epoch_generator(seed, epoch)), ranks)
+    batch = rank_batch_size(cfg.batch_size, ranks)
+    dev = ranks.device
+    weights = weights.to(dev)
+    model.train()
     sum_f = sum_g = 0.0
     n_seen = 0
     t0 = time.perf_counter()
-    chunk = cfg.batch_size * cfg.chunk_batches
-    for feats, target, group in _chunks(data, flat, chunk, cfg.prefetch):
-        for b0 in range(0, feats.shape[0], cfg.batch_size):
-            sl = slice(b0, b0 + cfg.batch_size)
-            loss_f, loss_g = _losses(nets, feats[sl], target[sl], group[sl], weights)
+    for feats, target, group in _chunks(data, flat, batch * cfg.chunk_batches, cfg.prefetch):
+        feats, target, group = feats.to(dev), target.to(dev), group.to(dev)
+        for b0 in range(0, feats.shape[0], batch):
+            sl = slice(b0, b0 + batch)
+            loss_f, loss_g = _losses(model, clips, feats[sl], target[sl], group[sl], weights)
             opt.zero_grad(set_to_none=True)
             (loss_f + loss_g).backward()
             opt.step()
@@ -278,9 +307,11 @@ def _run_epoch(nets: _Nets, opt: torch.optim.Optimizer, data: TrainingData, trai
         bar.set_postfix(epoch=epoch + 1, loss_f=f"{sum_f / max(n_seen, 1):.4f}",
                         loss_g=f"{sum_g / max(n_seen, 1):.4f}", refresh=False)
     seconds = time.perf_counter() - t0
-    return {"epoch": epoch + 1, "loss_range": sum_f / max(n_seen, 1),
-            "loss_boundary": sum_g / max(n_seen, 1), "patches": n_seen, "seconds": seconds,
-            "patches_per_s": n_seen / seconds if seconds > 0 else math.nan}
+    sum_f, sum_g, n_all = sum_over_ranks([sum_f, sum_g, float(n_seen)], ranks)
+    n_all = int(n_all)
+    return {"epoch": epoch + 1, "loss_range": sum_f / max(n_all, 1),
+            "loss_boundary": sum_g / max(n_all, 1), "patches": n_all, "seconds": seconds,
+            "patches_per_s": n_all / seconds if seconds > 0 else math.nan}
 
 
 @torch.no_grad()
@@ -303,7 +334,7 @@ def _validate(nets: _Nets, data: TrainingData, flat: torch.Tensor, weights: torc
         err_before.append(r - ref)
         for errs, f in zip(err_after, heads, strict=True):
             errs.append(r + f(feats) - ref)
-        _, lg = _losses(nets, feats, target, group, weights)
+        _, lg = _losses(nets, _clips(nets), feats, target, group, weights)
         loss_g += float(lg) * idx.numel()
         fires = nets.boundary_nets.probabilities(feats) > 0.5                 # (M, 4)
         on_edge = group >= 0
@@ -354,15 +385,19 @@ def _best_head(nets: _Nets, scores: dict[str, float]) -> RangeRecoveryNet:
     return heads[0]
 
 
-def _fingerprint(cfg: TrainConfig, seed: int, data: TrainingData, val_ids: list[int]) -> str:
+def _fingerprint(cfg: TrainConfig, seed: int, data: TrainingData, val_ids: list[int],
+                 world: int = 1) -> str:
     """What a checkpoint must match to be resumed. ``epochs`` is left out on purpose: nothing
     depends on it (no schedule), so a finished run can be extended by asking for more epochs;
-    ``chunk_batches``, ``prefetch`` and ``num_threads`` change speed, not the maths."""
+    ``chunk_batches``, ``prefetch`` and ``num_threads`` change speed, not the maths. The
+    number of processes (``world``) changes how an epoch's pixels are dealt out, so a
+    distributed run resumes only with as many."""
     settings = {k: v for k, v in asdict(cfg).items()
                 if k not in ("epochs", "chunk_batches", "prefetch", "num_threads",
                              "tune_edge_thresholds")}
-    return json.dumps({"config": settings, "seed": seed, "data": data.digest, "val": val_ids,
-                       "encoding": data.encoding.as_dict()}, sort_keys=True)
+    run = {"config": settings, "seed": seed, "data": data.digest, "val": val_ids,
+           "encoding": data.encoding.as_dict(), **({"world": world} if world > 1 else {})}
+    return json.dumps(run, sort_keys=True)
 
 
 def _save_checkpoint(path: Path, nets: _Nets, opt: torch.optim.Optimizer, epoch: int,
@@ -377,7 +412,7 @@ def _load_checkpoint(path: Path, nets: _Nets, opt: torch.optim.Optimizer, finger
                      ) -> tuple[int, list[dict[str, float]]]:
     """Restore a checkpoint; returns (epochs done, history)."""
     try:
-        state = torch.load(path, weights_only=True)
+        state = torch.load(path, weights_only=True, map_location="cpu")
         if state["fingerprint"] != fingerprint:
             raise WeightsError(f"checkpoint {path} belongs to another run (different data, "
                                "config or seed); remove it or use another checkpoint_dir")
@@ -391,8 +426,6 @@ def _load_checkpoint(path: Path, nets: _Nets, opt: torch.optim.Optimizer, finger
                            f"{type(err).__name__}: {err}") from err
 
 
-# ~120 lines (40 of docstring): one linear recipe (prepare, build, resume, epochs, pick, save)
-# over shared state whose steps are already helpers; splitting it would only pass that state on.
 def train(
     frames: Sequence[ToFFrame],
     calibration: IntrinsicCalibration,
@@ -406,8 +439,10 @@ def train(
     weights_path: str | os.PathLike[str] | None = None,
     overwrite: bool = False,
     progress: bool = True,
+    distributed: bool | None = None,
 ) -> tuple[CorrectionModel, list[dict[str, float]]]:
-    """Train F and G on frames with references.
+    """Train F and G on frames with references (in one process, or data-parallel over the
+    processes of a torchrun launch: :mod:`.distributed`).
 
     Args:
         frames: ToF frames (H, W as the calibration) with ``reference_mm`` (NaN = missing,
@@ -423,7 +458,10 @@ def train(
         checkpoint_dir: write ``checkpoint.pt`` here after every epoch and resume from it.
         weights_path: also write the final model there (see :func:`save_weights`).
         overwrite: allow replacing an existing ``weights_path``.
-        progress: show a tqdm bar with the running losses.
+        progress: show a tqdm bar with the running losses (rank 0's, when distributed).
+        distributed: train data-parallel over the torchrun processes (every rank calls
+            ``train`` with the same frames; rank 0 writes the checkpoint and weights); None =
+            when launched by torchrun with more than one process.
 
     Returns:
         ``(model, history)``: the trained model and one dict per epoch (losses, validation
@@ -433,9 +471,26 @@ def train(
         InputError: bad frames or configuration. WeightsError: unusable checkpoint or weights
         path.
     """
+    ranks = start(distributed)
+    try:
+        return _train(frames, calibration, config or TrainConfig(), ranks, seed=seed,
+                      encoding=encoding, geodesic=geodesic, groups=groups,
+                      checkpoint_dir=checkpoint_dir, weights_path=weights_path,
+                      overwrite=overwrite, progress=progress)
+    finally:
+        finish(ranks)
+
+
+# ~110 lines: one linear recipe (prepare, build, resume, epochs, pick, save) over shared state
+# whose steps are already helpers; splitting it would only pass that state on.
+def _train(frames: Sequence[ToFFrame], calibration: IntrinsicCalibration, cfg: TrainConfig,
+           ranks: Ranks, *, seed: int, encoding: EncodingConfig | None,
+           geodesic: GeodesicParams | None, groups: Sequence[int] | None,
+           checkpoint_dir: str | os.PathLike[str] | None,
+           weights_path: str | os.PathLike[str] | None, overwrite: bool, progress: bool
+           ) -> tuple[CorrectionModel, list[dict[str, float]]]:
     from tqdm import tqdm
 
-    cfg = config or TrainConfig()
     if weights_path is not None and Path(weights_path).exists() and not overwrite:
         # Refuse before training, not after an hour of it.
         raise WeightsError(f"weights file {weights_path} exists; pass overwrite=True to "
@@ -454,6 +509,7 @@ def train(
               for k, t in enumerate(clips[1:], start=1)]
     log.info("F target truncated at +-%s mm", " / ".join(f"{t:.0f}" for t in clips))
     nets = _Nets(model, others)
+    ddp = wrap(nets, ranks)
     opt = torch.optim.SGD(
         [{"params": [p for f in nets.range_heads for p in f.parameters()], "lr": cfg.lr_range},
          {"params": nets.boundary_nets.parameters(), "lr": cfg.lr_boundary}],
@@ -462,7 +518,7 @@ def train(
     weights = _class_weights(data, all_train, cfg)
     val_flat = sample_pixels(data, val_ids, cfg.val_samples_per_frame,
                              torch.Generator().manual_seed(seed + 1))
-    fingerprint = _fingerprint(cfg, seed, data, val_ids)
+    fingerprint = _fingerprint(cfg, seed, data, val_ids, ranks.world)
     ckpt = Path(checkpoint_dir) / CHECKPOINT_NAME if checkpoint_dir is not None else None
     done, history = 0, []
     if ckpt is not None:
@@ -473,22 +529,26 @@ def train(
     per_frame = data.usable[train_ids].flatten(1).sum(1)
     if cfg.max_samples_per_frame is not None:
         per_frame = per_frame.clamp(max=cfg.max_samples_per_frame)
-    per_epoch = int(per_frame.sum())
+    per_epoch = int(per_frame.sum()) // ranks.world
     threads = torch.get_num_threads()
     if cfg.num_threads is not None:
         torch.set_num_threads(cfg.num_threads)
     try:
-        with tqdm(total=per_epoch * (cfg.epochs - done), disable=not progress, unit="patch",
-                  unit_scale=True, desc="train F+G") as bar:
+        with tqdm(total=per_epoch * (cfg.epochs - done), disable=not (progress and ranks.main),
+                  unit="patch", unit_scale=True, desc="train F+G") as bar:
             for epoch in range(done, cfg.epochs):
-                stats = _run_epoch(nets, opt, data, train_ids, weights, cfg, seed, epoch, bar)
-                stats.update(_validate(nets, data, val_flat, weights, cfg))
+                stats = _run_epoch(ddp, _clips(nets), opt, data, train_ids, weights, cfg, seed,
+                                   epoch, bar, ranks)
+                stats.update(_validate(_on_cpu(nets), data, val_flat, weights, cfg))
                 history.append(stats)
                 log.info("epoch %d: %s", epoch + 1, stats)
-                if ckpt is not None:
+                if ckpt is not None and ranks.main:
                     _save_checkpoint(ckpt, nets, opt, epoch + 1, history, fingerprint)
+                barrier(ranks)  # no rank runs ahead of the checkpoint it may resume from
     finally:
         torch.set_num_threads(threads)
+    check_in_step(nets, ranks)
+    nets.to("cpu")
     nets.eval()
     clip_scores = history[-1].get("val_within_5mm_per_clip", {}) if history else {}
     model.range_net = _best_head(nets, clip_scores)
@@ -509,7 +569,14 @@ def train(
                       "train_frames": len(train_ids), "val_frames": val_ids,
                       "final": history[-1] if history else {},
                       "edge_thresholds": None if edge_choice is None else edge_choice.as_dict()}
-    if weights_path is not None:
+    if weights_path is not None and ranks.main:
         save_weights(weights_path, model, training_data_digest=data.digest, overwrite=overwrite)
     return model, history
+
+
+def _on_cpu(nets: _Nets) -> _Nets:
+    """``nets`` itself on a CPU, else a CPU copy (validation gathers its patches on the CPU)."""
+    if next(nets.parameters()).device.type == "cpu":
+        return nets
+    return copy.deepcopy(nets).cpu()
 
