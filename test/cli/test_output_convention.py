@@ -61,7 +61,15 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     for name, value, dtype in (("depth", 400, np.uint16), ("amplitude", 100, np.uint16),
                                ("confidence", 0, np.uint8)):
         np.save(paths["adi"] / f"{name}_mode3.npy", np.full((H, W), value, dtype))
+    # two shards of a one-scene dataset, for `sim merge`
+    for i in range(2):
+        paths[f"shard{i}"] = d / f"shard{i}"
+        assert main(["sim", "dataset", "-o", str(paths[f"shard{i}"]), "--shard", f"{i}/2",
+                     *SHARDED.split()]) == 0
     return paths
+
+
+SHARDED = "--train-scenes 1 --test-scenes 0 --views 1 --calibration 1 --workers 1"
 
 
 # Each writing subcommand on tiny inputs, ``{name}`` replaced by the input's path; the tests
@@ -73,6 +81,7 @@ WRITING = {
     "sim dataset": "sim dataset --train-scenes 1 --test-scenes 0 --views 1 --calibration 1 "
                    "--workers 1",
     "sim predict": "sim predict {one} --fuse-views 0",
+    "sim merge": "sim merge {shard0} {shard1}",
     "calibrate intrinsic": "calibrate intrinsic {frames}",
     "calibrate hand-eye": "calibrate hand-eye {tmp}/session --simulate --views 4 --min-views 3",
     "train": "train {frames} --calibration {calibration} --epochs 1 "
@@ -130,7 +139,8 @@ def test_every_subcommand_that_writes_has_o_output_and_no_positional_output() ->
 @pytest.mark.parametrize("flag", ["-o", "--output"])
 def test_every_writing_subcommand_parses_o_and_output(command: str, flag: str) -> None:
     line = {**WRITING, **TOO_SLOW}[command].format(**dict.fromkeys(
-        ("tmp", "one", "frames", "recording", "calibration", "weights", "adi"), "in"))
+        ("tmp", "one", "frames", "recording", "calibration", "weights", "adi", "shard0",
+         "shard1"), "in"))
     args = build_parser().parse_args([*shlex.split(line), flag, "somewhere/out"])
     assert args.output == Path("somewhere/out")
 
