@@ -21,6 +21,34 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                 description="The simulated robotic ToF cell.")
     commands = sim.add_subparsers(dest="sim_command", metavar="SIM_COMMAND", required=True)
 
+    _register_dataset(commands)
+    _register_merge(commands)
+
+    predict = commands.add_parser(
+        "predict", help="predict the ToF measurement of each frame from its reference",
+        description="For every frame of an NPZ or a recording, predict the ToF range and "
+                    "amplitude from its reference range image (the geometry) with the simulated "
+                    "camera, and write the same kind of file with the predicted measurement. "
+                    "Light transport runs over the reference's surfaces, the support plane "
+                    "extended across the light's cone and, for frames with poses, the surfaces "
+                    "that other views of the same scene saw (--fuse-views). About 1-3 s per "
+                    "180x140 frame.",
+        epilog="example: tof-mpd sim predict real.npz -o predicted.npz")
+    predict.add_argument("input", type=Path, help="recording directory or .npz with references")
+    add_output(predict, "output recording directory or .npz", was_positional=True)
+    predict.add_argument("--sim-config", type=Path,
+                         help="simulator configuration JSON (ToFConfig.to_dict); default nominal")
+    predict.add_argument("--albedo", type=float, default=None,
+                         help="albedo assumed where the file has none (default 0.5)")
+    predict.add_argument("--seed", type=int, default=0)
+    predict.add_argument("--fuse-views", type=int, default=4, metavar="N",
+                         help="fuse up to N other frames of the same scene (by pose and "
+                              "agreeing geometry) into each frame's world; 0 = each frame "
+                              "alone (default 4)")
+    predict.set_defaults(func=run_predict)
+
+
+def _register_dataset(commands: argparse._SubParsersAction) -> None:
     dataset = commands.add_parser(
         "dataset", help="render MD-Train/MD-Test-like recordings",
         description="Render an MD-Train-like and an MD-Test-like dataset (disjoint objects) with "
@@ -56,6 +84,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                               "task each; join them with `tof-mpd sim merge`")
     dataset.set_defaults(func=run_dataset)
 
+
+def _register_merge(commands: argparse._SubParsersAction) -> None:
     merge = commands.add_parser(
         "merge", help="join the shards of a dataset rendered with --shard",
         description="Check that SHARD directories (each from `tof-mpd sim dataset --shard I/N` "
@@ -67,29 +97,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     merge.add_argument("shards", type=Path, nargs="+", metavar="SHARD",
                        help="shard directories")
     merge.set_defaults(func=run_merge)
-
-    predict = commands.add_parser(
-        "predict", help="predict the ToF measurement of each frame from its reference",
-        description="For every frame of an NPZ or a recording, predict the ToF range and "
-                    "amplitude from its reference range image (the geometry) with the simulated "
-                    "camera, and write the same kind of file with the predicted measurement. "
-                    "Light transport runs over the reference's surfaces, the support plane "
-                    "extended across the light's cone and, for frames with poses, the surfaces "
-                    "that other views of the same scene saw (--fuse-views). About 1-3 s per "
-                    "180x140 frame.",
-        epilog="example: tof-mpd sim predict real.npz -o predicted.npz")
-    predict.add_argument("input", type=Path, help="recording directory or .npz with references")
-    add_output(predict, "output recording directory or .npz", was_positional=True)
-    predict.add_argument("--sim-config", type=Path,
-                         help="simulator configuration JSON (ToFConfig.to_dict); default nominal")
-    predict.add_argument("--albedo", type=float, default=None,
-                         help="albedo assumed where the file has none (default 0.5)")
-    predict.add_argument("--seed", type=int, default=0)
-    predict.add_argument("--fuse-views", type=int, default=4, metavar="N",
-                         help="fuse up to N other frames of the same scene (by pose and "
-                              "agreeing geometry) into each frame's world; 0 = each frame "
-                              "alone (default 4)")
-    predict.set_defaults(func=run_predict)
 
 
 def _spec(args: argparse.Namespace):
