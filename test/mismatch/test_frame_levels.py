@@ -17,11 +17,11 @@ from tof_mpd_ros.mismatch import analyse
 from tof_mpd_ros.mismatch.analysis import MIN_SCORE
 from tof_mpd_ros.mismatch.fit import fit_effect
 from tof_mpd_ros.mismatch.frame_levels import (
+    FRAME_LEVEL_EFFECTS,
     MAX_CHI2_LEFT,
     MIN_CHI2_GAIN,
     FrameLevels,
     frame_levels,
-    judged_by_frame_levels,
 )
 from tof_mpd_ros.sim.tof import ToFConfig
 
@@ -65,14 +65,14 @@ def test_a_fitted_drift_explains_the_levels_a_control_does_not(sweep, problem_of
     fit = fit_effect(drifting, "temperature_drift")
     levels = frame_levels(drifting, fit.config)
     assert levels is not None and levels.explained, levels
-    assert judged_by_frame_levels(drifting, "temperature_drift", fit.config)
     # the odd frames' levels step by about the drift: 1 mm or more from frame 1 to 5
     assert abs(levels.before_mm[0] - levels.before_mm[-1]) > 1.0
     still = problem_of(sweep({}, camera=NOISY, seed=5), NOISY)
     fit = fit_effect(still, "temperature_drift")
-    assert not judged_by_frame_levels(still, "temperature_drift", fit.config)
+    still_levels = frame_levels(still, fit.config)
+    assert still_levels is not None and not still_levels.explained, still_levels
     # only an effect of one offset per frame is judged so
-    assert not judged_by_frame_levels(drifting, "pixel_offset", fit.config)
+    assert FRAME_LEVEL_EFFECTS == ("temperature_drift",)
 
 
 def test_small_drift_on_a_noisy_camera_is_named(sweep):

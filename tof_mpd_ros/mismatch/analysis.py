@@ -386,7 +386,9 @@ class _Search:
         is reported (``unexplained``) and never taken on that basis. Nor, in the one-shot
         workflow, is a fit inside the camera's own window (a multipath gain the assumed units
         explain, a focused lens's blur) named as physics; ``boxed`` are the profile's fits of
-        those windows, which are taken."""
+        those windows, which are taken. Below the significance of the per-pixel score, a
+        warm-up drift may still be taken on the held-out frames' levels
+        (:meth:`_by_frame_levels`)."""
         past_significant = False
         for r in results:
             if past_significant or not _significant(r, threshold, self.min_t):

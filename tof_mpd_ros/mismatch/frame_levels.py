@@ -90,13 +90,4 @@ def frame_levels(problem: Problem, config: ToFConfig) -> FrameLevels | None:
     return FrameLevels(tuple(frames), tuple(before), tuple(after), tuple(se))
 
 
-def judged_by_frame_levels(problem: Problem, effect: str, config: ToFConfig) -> bool:
-    """Whether ``effect`` fitted as ``config`` is significant on the held-out frames' levels
-    (only an effect of ``FRAME_LEVEL_EFFECTS``)."""
-    if effect not in FRAME_LEVEL_EFFECTS:
-        return False
-    levels = frame_levels(problem, config)
-    return levels is not None and levels.explained
-
-
-__all__ = ["FRAME_LEVEL_EFFECTS", "FrameLevels", "frame_levels", "judged_by_frame_levels"]
+__all__ = ["FRAME_LEVEL_EFFECTS", "FrameLevels", "frame_levels"]
