@@ -53,6 +53,7 @@ from ..errors import InputError
 from ..thread_pools import shared_pool
 from ..validation import check_array
 from .encoding import EncodingConfig, encode_rows, frame_planes, plane_constants
+from .fcn import FCNCorrectionModel, run_fcn, valid_pixels
 from .networks import BoundaryNets, FrameBins, HeadOutputs, PatchNets, RangeRecoveryNet
 
 # Pixels per band on the CPU: the band's encodings (1440 x 240 float32, 1.4 MB) and the
@@ -92,6 +93,8 @@ class CorrectionModel:
         geodesic: geodesic filter constants.
         metadata: provenance (training data digest, code revision, history summary...).
     """
+
+    kind = "patch"
 
     calibration: IntrinsicCalibration
     encoding: EncodingConfig
@@ -146,6 +149,10 @@ class CorrectionResult:
         range_f_mm: float32 range after F only (R_F = R + F), NaN = invalid; equals
             ``calibrated_mm`` when F is skipped.
         valid: bool, the pixels with a usable measurement.
+        sigma_mm: float32 predicted standard deviation of the corrected range, mm (the
+            ``"fcn"`` kind only; None for the patch networks). There ``confidence`` is
+            ``1 - sigma / max_sigma_mm`` clipped to [0, 1], ``edges`` is all False, and pixels
+            with ``sigma > max_sigma_mm`` are NaN in ``range_mm`` (not in ``range_f_mm``).
     """
 
     range_mm: np.ndarray
@@ -154,6 +161,7 @@ class CorrectionResult:
     calibrated_mm: np.ndarray
     range_f_mm: np.ndarray
     valid: np.ndarray
+    sigma_mm: np.ndarray | None = None
 
 
 def check_frame_pair(model_shape: tuple[int, int], range_mm: object, amplitude: object
@@ -175,7 +183,7 @@ def check_frame_pair(model_shape: tuple[int, int], range_mm: object, amplitude: 
 
 
 def correct(
-    model: CorrectionModel,
+    model: CorrectionModel | FCNCorrectionModel,
     range_mm: np.ndarray,
     amplitude: np.ndarray,
     *,
@@ -189,7 +197,10 @@ def correct(
     """Remove multipath distortion from one frame or a batch of frames.
 
     Args:
-        model: the correction model; its networks are moved to ``device``.
+        model: the correction model (either kind); its networks are moved to ``device``. For
+            the ``"fcn"`` kind (:class:`~.fcn.FCNCorrectionModel`) the network replaces F, G
+            and the geodesic filter: ``use_range_net=False`` gives the calibrated range,
+            ``use_boundary``, ``precision``, ``threads`` and ``geodesic`` do not apply.
         range_mm: (H, W) or (B, H, W) float raw radial range in mm; NaN/inf/<= 0 = invalid.
         amplitude: same shape, raw amplitude in sensor units; NaN/inf/<= 0 = invalid.
         device: torch device for the networks (CPU default; GPU optional).
@@ -212,6 +223,8 @@ def correct(
     r, a = check_frame_pair(model.shape, range_mm, amplitude)
     if precision not in ("float32", "bfloat16"):
         raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
+    if isinstance(model, FCNCorrectionModel):
+        return _correct_fcn(model, r, a, device, use_range_net)
     params = model.geodesic if geodesic is None else geodesic
     single = r.ndim == 2
     r3 = r[None] if single else r
@@ -229,6 +242,31 @@ def correct(
     if single:
         result = CorrectionResult(*(x[0] for x in fields))
     return result
+
+
+def _correct_fcn(model: FCNCorrectionModel, r: np.ndarray, a: np.ndarray,
+                 device: torch.device | str, use_net: bool) -> CorrectionResult:
+    """:func:`correct` for the ``"fcn"`` kind (see :class:`CorrectionResult`)."""
+    single = r.ndim == 2
+    r3, a3 = (r[None], a[None]) if single else (r, a)
+    a3 = a3.astype(np.float32, copy=False)
+    calibrated = model.calibration.apply(r3, a3)
+    nan = np.float32(np.nan)
+    if use_net:
+        corr, sigma, valid = run_fcn(model.net, calibrated, a3, device=device)
+        range_f = (calibrated + corr).astype(np.float32)
+        sure = valid & (sigma <= model.max_sigma_mm)
+        final = np.where(sure, range_f, nan).astype(np.float32)
+        confidence = np.where(valid, np.clip(1 - sigma / model.max_sigma_mm, 0, 1), 0)
+    else:
+        valid = valid_pixels(calibrated, a3)
+        range_f = final = np.where(valid, calibrated, nan).astype(np.float32)
+        sigma = np.full(calibrated.shape, nan, np.float32)
+        confidence = valid
+    calib = np.where(valid, calibrated, nan).astype(np.float32)
+    fields = (final, np.zeros(valid.shape, bool), confidence.astype(np.float32), calib,
+              range_f, valid, sigma)
+    return CorrectionResult(*(x[0] for x in fields) if single else fields)
 
 
 def _worker_count(threads: int | None) -> int:

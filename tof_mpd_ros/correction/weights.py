@@ -2,12 +2,16 @@
 
 Format: an ``.npz`` (zip) of named float32/uint8/str arrays read with ``allow_pickle=False``:
 
-* ``metadata``: a 0-d str array holding JSON: ``format``, ``format_version``, ``crop``
-  (width, height), ``architecture`` (both networks), ``encoding`` and ``geodesic`` constants,
+* ``metadata``: a 0-d str array holding JSON: ``format``, ``format_version``, ``kind``
+  (``"patch"``: the paper's F and G, the default of files that do not say; ``"fcn"``: the
+  fully-convolutional network of :mod:`.fcn`), ``crop`` (width, height), ``architecture``
+  (both networks, or the FCN's), ``encoding`` and ``geodesic`` constants (patch kind) or
+  ``max_sigma_mm`` (fcn kind),
   ``package_version``, ``code_revision``, ``training_data_digest``, ``created_utc``,
   ``array_digest`` (SHA-256 over every other array) and free-form ``extra`` provenance;
 * ``calibration/<name>``: :meth:`IntrinsicCalibration.to_arrays`;
-* ``range_net/<param>`` and ``boundary_nets/<param>``: the networks' state dicts.
+* ``range_net/<param>`` and ``boundary_nets/<param>``: the networks' state dicts (patch kind);
+  ``fcn/<param>``: the network's (fcn kind).
 
 Every way a file can be wrong (missing, not a zip, truncated, bit-flipped, other format or version,
 arrays that do not fit the declared architecture, another crop) raises :class:`WeightsError`
@@ -34,12 +38,16 @@ from ..calibration.intrinsic import IntrinsicCalibration
 from ..errors import TofMpdError, WeightsError
 from ..npz_file import read_npz
 from .encoding import EncodingConfig
+from .fcn import FCNArchitecture, FCNCorrectionModel, ResidualFCN
 from .networks import BoundaryNets, RangeRecoveryNet
 from .pipeline import CorrectionModel, GeodesicParams
 
 FORMAT = "tof_mpd_ros.correction_model"
 FORMAT_VERSION = 1
-_PREFIXES = ("calibration/", "range_net/", "boundary_nets/")
+#: the model kinds a file can hold and the array prefixes each has
+KINDS = {"patch": ("calibration/", "range_net/", "boundary_nets/"),
+         "fcn": ("calibration/", "fcn/")}
+AnyModel = CorrectionModel | FCNCorrectionModel
 
 
 def code_revision() -> str:
@@ -53,8 +61,10 @@ def code_revision() -> str:
     return out.stdout.strip() or "unknown"
 
 
-def architecture(model: CorrectionModel) -> dict[str, Any]:
+def architecture(model: AnyModel) -> dict[str, Any]:
     """The networks' shapes as plain JSON data."""
+    if isinstance(model, FCNCorrectionModel):
+        return {"fcn": model.architecture.as_dict()}
     f, g = model.range_net, model.boundary_nets
     return {"range_net": {"n_features": f.n_features, "hidden": list(f.hidden),
                           "target_clip_mm": f.target_clip_mm},
@@ -72,21 +82,36 @@ def array_digest(arrays: dict[str, np.ndarray]) -> str:
     return h.hexdigest()
 
 
-def _model_arrays(model: CorrectionModel) -> dict[str, np.ndarray]:
+def _networks(model: AnyModel) -> tuple[tuple[str, torch.nn.Module], ...]:
+    """(array prefix, network) of each network of ``model``."""
+    if isinstance(model, FCNCorrectionModel):
+        return (("fcn/", model.net),)
+    return (("range_net/", model.range_net), ("boundary_nets/", model.boundary_nets))
+
+
+def _kind_metadata(model: AnyModel) -> dict[str, Any]:
+    """The metadata entries that depend on the model's kind."""
+    if isinstance(model, FCNCorrectionModel):
+        return {"max_sigma_mm": model.max_sigma_mm}
+    return {"encoding": model.encoding.as_dict(), "geodesic": dataclasses.asdict(model.geodesic)}
+
+
+def _model_arrays(model: AnyModel) -> dict[str, np.ndarray]:
     arrays = {f"calibration/{k}": v for k, v in model.calibration.to_arrays().items()}
-    for prefix, net in (("range_net/", model.range_net), ("boundary_nets/", model.boundary_nets)):
+    for prefix, net in _networks(model):
         for k, v in net.state_dict().items():
             arrays[prefix + k] = v.detach().to("cpu", torch.float32).numpy()
     return arrays
 
 
-def save_weights(path: str | os.PathLike[str], model: CorrectionModel, *,
+def save_weights(path: str | os.PathLike[str], model: AnyModel, *,
                  training_data_digest: str = "", overwrite: bool = False) -> Path:
     """Write ``model`` to one ``.npz`` file atomically (temporary file, then rename).
 
     Args:
         path: destination file.
-        model: the model to save; ``model.metadata`` is stored under ``extra`` (must be JSON).
+        model: the model to save (either kind); ``model.metadata`` is stored under ``extra``
+            (must be JSON).
         training_data_digest: digest of the data the networks were trained on.
         overwrite: replace an existing file (refused by default).
 
@@ -102,10 +127,9 @@ def save_weights(path: str | os.PathLike[str], model: CorrectionModel, *,
         raise WeightsError(f"weights file {path} exists; pass overwrite=True to replace it")
     arrays = _model_arrays(model)
     h, w = model.shape
-    meta = {"format": FORMAT, "format_version": FORMAT_VERSION,
+    meta = {"format": FORMAT, "format_version": FORMAT_VERSION, "kind": model.kind,
             "crop": {"width": w, "height": h}, "architecture": architecture(model),
-            "encoding": model.encoding.as_dict(),
-            "geodesic": dataclasses.asdict(model.geodesic),
+            **_kind_metadata(model),
             "package_version": __version__, "code_revision": code_revision(),
             "training_data_digest": training_data_digest
             or str(model.metadata.get("training_data_digest", "")),
@@ -153,7 +177,7 @@ def _sub(arrays: dict[str, np.ndarray], prefix: str) -> dict[str, np.ndarray]:
     return {k[len(prefix):]: v for k, v in arrays.items() if k.startswith(prefix)}
 
 
-def _net(path: Path, cls: type[RangeRecoveryNet] | type[BoundaryNets], args: tuple[Any, ...],
+def _net(path: Path, cls: type[torch.nn.Module], args: tuple[Any, ...],
          params: dict[str, np.ndarray], name: str) -> torch.nn.Module:
     """Network ``cls(*args)`` holding ``params``, built only once the file's arrays have the
     shapes the declared architecture gives and finite values. The shapes are taken from a
@@ -179,6 +203,39 @@ def _net(path: Path, cls: type[RangeRecoveryNet] | type[BoundaryNets], args: tup
     return net
 
 
+def _extra(path: Path, meta: dict[str, Any]) -> dict[str, Any]:
+    extra = meta.get("extra", {})
+    if not isinstance(extra, dict):
+        raise WeightsError(f"{path}: metadata 'extra' is a {type(extra).__name__}, not an object")
+    return dict(extra)
+
+
+def _check_crop(path: Path, meta: dict[str, Any], shape: tuple[int, int]) -> None:
+    crop = meta.get("crop")
+    if not isinstance(crop, dict) or (crop.get("height"), crop.get("width")) != shape:
+        raise WeightsError(f"{path}: metadata crop {crop} disagrees with the calibration's "
+                           f"{shape[1]}x{shape[0]}")
+
+
+def _build_fcn(path: Path, meta: dict[str, Any], arrays: dict[str, np.ndarray]
+               ) -> FCNCorrectionModel:
+    try:
+        arch = FCNArchitecture(**{**meta["architecture"]["fcn"],
+                                  "widths": tuple(meta["architecture"]["fcn"]["widths"])})
+        max_sigma = float(meta["max_sigma_mm"])
+        calibration = IntrinsicCalibration.from_arrays(_sub(arrays, "calibration/"))
+    except (KeyError, TypeError, ValueError, TofMpdError) as err:
+        raise WeightsError(f"{path}: malformed metadata or calibration: "
+                           f"{type(err).__name__}: {err}") from err
+    net = _net(path, ResidualFCN, (arch,), _sub(arrays, "fcn/"), "fcn")
+    try:
+        model = FCNCorrectionModel(calibration, net, max_sigma, _extra(path, meta))
+    except TofMpdError as err:
+        raise WeightsError(f"{path}: {err}") from err
+    _check_crop(path, meta, model.shape)
+    return model
+
+
 def _build(path: Path, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> CorrectionModel:
     try:
         arch = meta["architecture"]
@@ -194,21 +251,16 @@ def _build(path: Path, meta: dict[str, Any], arrays: dict[str, np.ndarray]) -> C
                            f"{type(err).__name__}: {err}") from err
     f = _net(path, RangeRecoveryNet, f_args, _sub(arrays, "range_net/"), "range_net")
     g = _net(path, BoundaryNets, g_args, _sub(arrays, "boundary_nets/"), "boundary_nets")
-    extra, crop = meta.get("extra", {}), meta.get("crop")
-    if not isinstance(extra, dict):
-        raise WeightsError(f"{path}: metadata 'extra' is a {type(extra).__name__}, not an object")
     try:
-        model = CorrectionModel(calibration, encoding, f, g, geodesic, dict(extra))
+        model = CorrectionModel(calibration, encoding, f, g, geodesic, _extra(path, meta))
     except TofMpdError as err:
         raise WeightsError(f"{path}: networks do not fit the encoding: {err}") from err
-    if not isinstance(crop, dict) or (crop.get("height"), crop.get("width")) != model.shape:
-        raise WeightsError(f"{path}: metadata crop {crop} disagrees with the calibration's "
-                           f"{model.shape[1]}x{model.shape[0]}")
+    _check_crop(path, meta, model.shape)
     return model
 
 
 def load_weights(path: str | os.PathLike[str], *,
-                 expected_shape: tuple[int, int] | None = None) -> CorrectionModel:
+                 expected_shape: tuple[int, int] | None = None) -> AnyModel:
     """Read a weights file written by :func:`save_weights`.
 
     Args:
@@ -216,20 +268,25 @@ def load_weights(path: str | os.PathLike[str], *,
         expected_shape: ``(H, W)`` of the frames it will correct; another crop is an error.
 
     Returns:
-        The :class:`CorrectionModel` (CPU, float32); ``metadata`` holds the stored ``extra``
-        plus the file's provenance under ``"file"``.
+        The model of the file's kind: a :class:`CorrectionModel` (``"patch"``) or an
+        :class:`~.fcn.FCNCorrectionModel` (``"fcn"``), on the CPU in float32; ``metadata``
+        holds the stored ``extra`` plus the file's provenance under ``"file"``.
 
     Raises:
-        WeightsError: missing, corrupt, truncated, other format/version, wrong architecture,
-            or a crop other than ``expected_shape``.
+        WeightsError: missing, corrupt, truncated, other format/version, unknown kind, wrong
+            architecture, or a crop other than ``expected_shape``.
     """
     path = Path(path)
     arrays = _read_arrays(path)
     meta = _read_metadata(path, arrays)
-    unknown = [k for k in arrays if not k.startswith(_PREFIXES)]
+    kind = meta.get("kind", "patch")
+    if kind not in KINDS:
+        raise WeightsError(f"{path}: model kind {kind!r} is not one this code knows "
+                           f"({', '.join(KINDS)})")
+    unknown = [k for k in arrays if not k.startswith(KINDS[kind])]
     if unknown:
-        raise WeightsError(f"{path}: unexpected entries {unknown}")
-    model = _build(path, meta, arrays)
+        raise WeightsError(f"{path}: unexpected entries for a {kind!r} model: {unknown}")
+    model = (_build_fcn if kind == "fcn" else _build)(path, meta, arrays)
     if expected_shape is not None and tuple(expected_shape) != model.shape:
         h, w = model.shape
         raise WeightsError(f"{path}: weights are for a {w}x{h} (W x H) crop, expected "
