@@ -136,7 +136,10 @@ class ResidualFCN(nn.Module):
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(correction mm, σ mm), each (B, H, W) float32."""
-        out = self.raw(x)
+        return self.scale(self.raw(x))
+
+    def scale(self, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(correction mm, σ mm) of the raw outputs (B, 2, H, W)."""
         a = self.architecture
         sigma = a.sigma_floor_mm + a.sigma_scale_mm * tnf.softplus(out[:, 1])
         return a.correction_scale_mm * out[:, 0], sigma
@@ -246,7 +249,8 @@ class FCNCorrectionModel:
 
 @torch.inference_mode()
 def run_fcn(net: ResidualFCN, calibrated_mm: np.ndarray, amplitude: np.ndarray, *,
-            device: torch.device | str = "cpu") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            device: torch.device | str = "cpu", precision: str = "float32"
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Correction and σ of a batch of frames.
 
     Args:
@@ -254,6 +258,8 @@ def run_fcn(net: ResidualFCN, calibrated_mm: np.ndarray, amplitude: np.ndarray, 
         calibrated_mm: (B, H, W) float32 calibrated range, mm, NaN = invalid.
         amplitude: (B, H, W) float32 amplitude.
         device: where the network runs (it is moved there).
+        precision: ``"float32"`` or ``"bfloat16"`` (the convolutions under autocast; the
+            output scaling and σ stay float32).
 
     Returns:
         ``(correction_mm, sigma_mm, valid)``: float32 (B, H, W) (NaN on invalid pixels) and
@@ -267,7 +273,9 @@ def run_fcn(net: ResidualFCN, calibrated_mm: np.ndarray, amplitude: np.ndarray, 
     x, valid = fcn_inputs(calibrated_mm, amplitude, net.architecture.multiple)
     # channels-last: oneDNN's direct convolutions run faster on NHWC on the CPU
     x = x.to(dev).contiguous(memory_format=torch.channels_last)
-    corr, sigma = net(x)
+    with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=precision == "bfloat16"):
+        out = net.raw(x)
+    corr, sigma = net.scale(out.float())
     nan = np.float32(np.nan)
     corr_np = corr[:, :h, :w].float().cpu().numpy()
     sigma_np = sigma[:, :h, :w].float().cpu().numpy()

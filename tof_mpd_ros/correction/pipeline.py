@@ -200,7 +200,8 @@ def correct(
         model: the correction model (either kind); its networks are moved to ``device``. For
             the ``"fcn"`` kind (:class:`~.fcn.FCNCorrectionModel`) the network replaces F, G
             and the geodesic filter: ``use_range_net=False`` gives the calibrated range,
-            ``use_boundary``, ``precision``, ``threads`` and ``geodesic`` do not apply.
+            ``precision`` sets its convolutions' (:func:`~.fcn.run_fcn`), ``use_boundary``,
+            ``threads`` and ``geodesic`` do not apply.
         range_mm: (H, W) or (B, H, W) float raw radial range in mm; NaN/inf/<= 0 = invalid.
         amplitude: same shape, raw amplitude in sensor units; NaN/inf/<= 0 = invalid.
         device: torch device for the networks (CPU default; GPU optional).
@@ -224,7 +225,7 @@ def correct(
     if precision not in ("float32", "bfloat16"):
         raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
     if isinstance(model, FCNCorrectionModel):
-        return _correct_fcn(model, r, a, device, use_range_net)
+        return _correct_fcn(model, r, a, device, use_range_net, precision)
     params = model.geodesic if geodesic is None else geodesic
     single = r.ndim == 2
     r3 = r[None] if single else r
@@ -245,7 +246,8 @@ def correct(
 
 
 def _correct_fcn(model: FCNCorrectionModel, r: np.ndarray, a: np.ndarray,
-                 device: torch.device | str, use_net: bool) -> CorrectionResult:
+                 device: torch.device | str, use_net: bool, precision: str
+                 ) -> CorrectionResult:
     """:func:`correct` for the ``"fcn"`` kind (see :class:`CorrectionResult`)."""
     single = r.ndim == 2
     r3, a3 = (r[None], a[None]) if single else (r, a)
@@ -253,7 +255,8 @@ def _correct_fcn(model: FCNCorrectionModel, r: np.ndarray, a: np.ndarray,
     calibrated = model.calibration.apply(r3, a3)
     nan = np.float32(np.nan)
     if use_net:
-        corr, sigma, valid = run_fcn(model.net, calibrated, a3, device=device)
+        corr, sigma, valid = run_fcn(model.net, calibrated, a3, device=device,
+                                     precision=precision)
         range_f = (calibrated + corr).astype(np.float32)
         sure = valid & (sigma <= model.max_sigma_mm)
         final = np.where(sure, range_f, nan).astype(np.float32)
