@@ -1,0 +1,177 @@
+"""Both model kinds and precisions side by side, per frame size (issue 17, item 4).
+
+For 180x140 and 320x240 frames, times ``pipeline.correct`` end to end for
+
+* the patch kind (calibration -> F -> G -> geodesic filter) in float32 and bfloat16,
+* the fcn kind (calibration -> U-Net) in float32 and bfloat16,
+
+all in one run, interleaved frame by frame so that a change of machine load hits every row
+alike, and prints the median and p90 in ms, each row's ratio to the patch float32 path, the
+targets (<= 15 ms at 180x140, <= 33 ms at 320x240 on 2 Zen 4 cores) and the paper's 165 ms
+(GPU). For the fcn kind it also prints the convolutions' FLOPs per frame (counted from the
+layer shapes), the GFLOP/s reached and its share of the CPU's nominal float32 peak
+(``bench_pipeline.cpu_peak``, which explains the figure) and of a large GEMM measured in the
+same run. For each bfloat16 row: the share of pixels within 0.5 mm of the float32 output of
+the same kind (the issue's bar for reduced precision: >= 99.9 %).
+
+Inputs it makes itself: the synthetic scene of ``bench_pipeline`` (planes, a box, a disc, 2 mm
+noise), with untrained models of both kinds on an identity calibration (timing does not depend
+on the weights' values). ``--weights-patch`` / ``--weights-fcn`` time trained files instead
+(their frames are the synthetic ones resized to the file's crop).
+
+Usage: ``python benchmarks/bench_kinds.py [--repeats 20] [--json out.json]``; ~1-2 min on an
+idle 2-core machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_pipeline import _resize, _synthetic, cpu_peak, gemm_ceiling, machine
+
+from tof_mpd_ros.calibration import IntrinsicCalibration
+from tof_mpd_ros.correction.fcn import FCNCorrectionModel, ResidualFCN
+from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
+
+PAPER_MS = 165.0
+TARGETS_MS = {"180x140": 15.0, "320x240": 33.0}
+SIZES = ((140, 180), (240, 320))
+ROWS = (("patch", "float32"), ("patch", "bfloat16"), ("fcn", "float32"), ("fcn", "bfloat16"))
+
+
+def conv_flops(net: ResidualFCN, h: int, w: int) -> int:
+    """Multiply-add FLOPs (2 per MAC) of every convolution of ``net`` on an (h, w) frame,
+    counted from the output shapes seen by forward hooks."""
+    total = 0
+
+    def hook(module: torch.nn.Conv2d, _inp: Any, out: torch.Tensor) -> None:
+        nonlocal total
+        k = module.kernel_size[0] * module.kernel_size[1] * module.in_channels
+        total += 2 * k * out.numel()
+
+    handles = [m.register_forward_hook(hook) for m in net.modules()
+               if isinstance(m, torch.nn.Conv2d)]
+    m = net.architecture.multiple
+    with torch.no_grad():
+        net.raw(torch.zeros(1, 4, -(-h // m) * m, -(-w // m) * m))
+    for handle in handles:
+        handle.remove()
+    return total
+
+
+def models(h: int, w: int, args: argparse.Namespace) -> dict[str, Any]:
+    """One model of each kind at (h, w)."""
+    from tof_mpd_ros.correction.weights import load_weights
+
+    calib = IntrinsicCalibration.identity(h, w)
+    patch = (load_weights(args.weights_patch) if args.weights_patch
+             else CorrectionModel.untrained(calib, seed=0))
+    fcn = (load_weights(args.weights_fcn) if args.weights_fcn
+           else FCNCorrectionModel.untrained(calib, seed=0))
+    return {"patch": patch, "fcn": fcn}
+
+
+def frames_for(model: Any, base: list[tuple[np.ndarray, np.ndarray]]
+               ) -> list[tuple[np.ndarray, np.ndarray]]:
+    h, w = model.shape
+    return [(_resize(r, h, w), _resize(a, h, w)) for r, a in base]
+
+
+def time_size(h: int, w: int, args: argparse.Namespace) -> dict[str, Any]:
+    """Median / p90 ms of every row at (h, w), interleaved, plus the bf16 agreement."""
+    base = _synthetic()
+    kinds = models(h, w, args)
+    frames = {k: frames_for(m, base) for k, m in kinds.items()}
+    times: dict[tuple[str, str], list[float]] = {row: [] for row in ROWS}
+    for row in ROWS:                                  # warm-up: engines, oneDNN primitives
+        correct(kinds[row[0]], *frames[row[0]][0], precision=row[1])
+    for i in range(args.repeats):
+        for kind, precision in ROWS:
+            r, a = frames[kind][i % len(frames[kind])]
+            t0 = time.perf_counter()
+            correct(kinds[kind], r, a, precision=precision)
+            times[(kind, precision)].append((time.perf_counter() - t0) * 1e3)
+    out: dict[str, Any] = {}
+    for kind, precision in ROWS:
+        ms = sorted(times[(kind, precision)])
+        out[f"{kind}/{precision}"] = {"median_ms": statistics.median(ms),
+                                      "p90_ms": ms[int(0.9 * (len(ms) - 1))]}
+    for kind in ("patch", "fcn"):
+        out[f"{kind}/bfloat16"]["within_0.5mm_of_float32"] = bf16_agreement(
+            kinds[kind], frames[kind])
+    out["fcn_gflop_per_frame"] = conv_flops(kinds["fcn"].net, *kinds["fcn"].shape) / 1e9
+    return out
+
+
+def bf16_agreement(model: Any, frames: list[tuple[np.ndarray, np.ndarray]]) -> float:
+    """Share of valid pixels whose bfloat16 output is within 0.5 mm of the float32 one."""
+    hits = total = 0
+    for r, a in frames:
+        ref = correct(model, r, a).range_f_mm
+        low = correct(model, r, a, precision="bfloat16").range_f_mm
+        ok = np.isfinite(ref) & np.isfinite(low)
+        hits += int((np.abs(ref - low)[ok] <= 0.5).sum())
+        total += int(ok.sum())
+    return hits / max(total, 1)
+
+
+def print_size(label: str, res: dict[str, Any], peak: dict[str, Any], gemm: float) -> None:
+    base = res["patch/float32"]["median_ms"]
+    print(f"\n{label}  (target <= {TARGETS_MS[label]:.0f} ms; the paper: {PAPER_MS:.0f} ms "
+          "on a GPU)")
+    print(f"  {'kind/precision':<18}{'median ms':>10}{'p90 ms':>9}{'vs patch f32':>14}"
+          f"{'bf16 within 0.5 mm':>20}")
+    for kind, precision in ROWS:
+        row = res[f"{kind}/{precision}"]
+        agree = row.get("within_0.5mm_of_float32")
+        agree_s = f"{100 * agree:.3f} %" if agree is not None else ""
+        print(f"  {kind + '/' + precision:<18}{row['median_ms']:>10.1f}{row['p90_ms']:>9.1f}"
+              f"{row['median_ms'] / base:>13.2f}x{agree_s:>20}")
+    gflop = res["fcn_gflop_per_frame"]
+    rate = gflop / (res["fcn/float32"]["median_ms"] / 1e3)
+    print(f"  fcn: {gflop:.2f} GFLOP per frame -> {rate:.1f} GFLOP/s in float32 = "
+          f"{100 * rate / peak['peak_gflops']:.0f} % of the nominal peak "
+          f"({peak['peak_gflops']} GFLOP/s), {100 * rate / gemm:.0f} % of a large GEMM now "
+          f"({gemm:.0f} GFLOP/s)")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--weights-patch", type=Path)
+    parser.add_argument("--weights-fcn", type=Path)
+    parser.add_argument("--json", type=Path)
+    args = parser.parse_args()
+    info = machine()
+    cores = info["affinity_cpus"]
+    peak = cpu_peak(cores)
+    gemm = gemm_ceiling()
+    print(f"CPU: {info['cpu']}, {cores} usable cores, torch {info['torch']} with "
+          f"{info['torch_threads']} threads; load {info['load_average_start']}")
+    print(f"nominal float32 peak: {peak['how']} = {peak['peak_gflops']} GFLOP/s; "
+          f"bf16 instructions: {peak['bf16']}")
+    results = {}
+    for h, w in SIZES:
+        label = f"{w}x{h}"
+        results[label] = time_size(h, w, args)
+        print_size(label, results[label], peak, gemm)
+    info["load_average_end"] = [round(x, 2) for x in os.getloadavg()]
+    print(f"\nload average at the end: {info['load_average_end']}")
+    if args.json:
+        args.json.write_text(json.dumps({"machine": info, "peak": peak, "gemm_gflops": gemm,
+                                         "results": results}, indent=2))
+
+
+if __name__ == "__main__":
+    main()
