@@ -16,14 +16,13 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
-from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
 from matplotlib.patches import Patch
 
 from ..errors import InputError
 from .metrics import AccuracyCurve
-from .plots import MISSING_COLOUR, NO_ESTIMATE_COLOUR
+from .plots import MISSING_COLOUR, NO_ESTIMATE_COLOUR, save_png
 from .profiles import ProfileLine
 
 # Fixed styles so a method looks the same in every figure.
@@ -45,14 +44,6 @@ LABELS = {"F": "F alone", "proposed": "proposed (full)"}
 
 def _style(name: str) -> dict:
     return {"linewidth": 1.3, **_STYLE.get(name, {})}
-
-
-def _save(fig: Figure, path: str | Path, dpi: int) -> Path:
-    out = Path(path)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    FigureCanvasAgg(fig)
-    fig.savefig(out, dpi=dpi, format="png")
-    return out
 
 
 def plot_method_curves(curves: Mapping[str, AccuracyCurve], path: str | Path, *,
@@ -81,7 +72,7 @@ def plot_method_curves(curves: Mapping[str, AccuracyCurve], path: str | Path, *,
            ylim=(0, 100), xlim=(0, max(max(c.thresholds_mm) for c in curves.values())))
     ax.grid(True, alpha=0.3)
     ax.legend(loc="lower right", fontsize="small", ncol=2)
-    return _save(fig, path, dpi)
+    return save_png(fig, path, dpi)
 
 
 def _panel_image(ax, image: np.ndarray, missing: np.ndarray, vmin: float, vmax: float,
@@ -158,7 +149,7 @@ def plot_qualitative(reference: np.ndarray, estimates: Mapping[str, np.ndarray],
                  shrink=0.8, aspect=12)
     if title:
         fig.suptitle(title)
-    return _save(fig, path, dpi)
+    return save_png(fig, path, dpi)
 
 
 def plot_profile(profiles: Mapping[str, np.ndarray], methods: Sequence[str], path: str | Path,
@@ -191,4 +182,4 @@ def plot_profile(profiles: Mapping[str, np.ndarray], methods: Sequence[str], pat
     ax.set_title((title or "range profile across a boundary") + where, fontsize="medium")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize="small")
-    return _save(fig, path, dpi)
+    return save_png(fig, path, dpi)

@@ -23,7 +23,9 @@ MISSING_COLOUR = "#22aa22"  # the paper marks missing reference pixels in green
 NO_ESTIMATE_COLOUR = "#000000"
 
 
-def _save(fig: Figure, path: str | Path, dpi: int) -> Path:
+def save_png(fig: Figure, path: str | Path, dpi: int) -> Path:
+    """Write ``fig`` as a PNG (parent directories created) on an Agg canvas; the one figure
+    writer of the evaluation's plots."""
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     FigureCanvasAgg(fig)
@@ -63,7 +65,7 @@ def plot_accuracy_curves(evaluations: Mapping[str, FrameEvaluation], path: str |
                  f"boundary region ({radius:g} px)")
     if title:
         fig.suptitle(title)
-    return _save(fig, path, dpi)
+    return save_png(fig, path, dpi)
 
 
 def plot_precision_recall(curves: Mapping[str, EdgePRCurve], path: str | Path, *,
@@ -95,7 +97,7 @@ def plot_precision_recall(curves: Mapping[str, EdgePRCurve], path: str | Path, *
            title=title or f"edges, tolerance {next(iter(curves.values())).tolerance_px:g} px")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="lower left", fontsize="small")
-    return _save(fig, path, dpi)
+    return save_png(fig, path, dpi)
 
 
 def plot_error_map(estimate: np.ndarray, reference: np.ndarray, path: str | Path, *,
@@ -137,4 +139,4 @@ def plot_error_map(estimate: np.ndarray, reference: np.ndarray, path: str | Path
               loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=2, fontsize="small",
               frameon=False)
     ax.set(title=title or "range error", xticks=[], yticks=[])
-    return _save(fig, path, dpi)
+    return save_png(fig, path, dpi)
