@@ -1,4 +1,5 @@
-"""``tof-mpd train``: fit F and G (after the intrinsic calibration) on recordings."""
+"""``tof-mpd train``: fit F and G, or the fcn kind (after the intrinsic calibration), on
+recordings."""
 
 from __future__ import annotations
 
@@ -6,42 +7,56 @@ import argparse
 import json
 import os
 from pathlib import Path
+from typing import Any
 
 from .output import add_output
+
+MODEL_KINDS = ("patch", "fcn")
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     train = subparsers.add_parser(
-        "train", help="train the range-recovery net F and the boundary nets G",
-        description="Train F and G on recordings (or NPZ files) whose frames carry a "
-                    "structured-light reference; missing reference pixels are excluded. The "
-                    "intrinsic calibration comes from --calibration (a file from `tof-mpd "
-                    "calibrate intrinsic`) or is fitted from --calibration-captures. Writes the "
-                    "weights file (calibration + F + G + constants) and WEIGHTS.json with the "
-                    "loss history. The paper's schedule (40 epochs, batch 500) on MD-Train-sized "
-                    "data takes tens of minutes on 2 cores; --epochs and "
-                    "--max-samples-per-frame shorten it. Resumable with --checkpoint-dir.")
+        "train", help="train the correction networks (F and G, or the fcn kind)",
+        description="Train the correction networks on recordings (or NPZ files) whose frames "
+                    "carry a structured-light reference; missing reference pixels are excluded. "
+                    "--model patch (default): the paper's range-recovery net F and boundary "
+                    "nets G; --model fcn: the fully-convolutional network with a per-pixel "
+                    "sigma (trained on random crops, Gaussian likelihood). The intrinsic "
+                    "calibration comes from --calibration (a file from `tof-mpd calibrate "
+                    "intrinsic`) or is fitted from --calibration-captures. Writes the weights "
+                    "file and WEIGHTS.json with the loss history. The paper's schedule (40 "
+                    "epochs, batch 500) on MD-Train-sized data takes tens of minutes on 2 "
+                    "cores; --epochs and --max-samples-per-frame shorten it. Resumable with "
+                    "--checkpoint-dir.")
     train.add_argument("recordings", type=Path, nargs="+", help="training recordings / .npz")
     add_output(train, "weights .npz to write")
     source = train.add_mutually_exclusive_group(required=True)
     source.add_argument("--calibration", type=Path, help="calibration .npz")
     source.add_argument("--calibration-captures", type=Path,
                         help="checkerboard capture recording to fit the calibration from")
-    train.add_argument("--epochs", type=int, default=40)
-    train.add_argument("--batch-size", type=int, default=500)
+    train.add_argument("--model", choices=MODEL_KINDS, default="patch",
+                       help="what to train: patch = F and G (default), fcn = the "
+                            "fully-convolutional network with per-pixel sigma")
+    train.add_argument("--epochs", type=int, help="default 40 (patch) / 30 (fcn)")
+    train.add_argument("--batch-size", type=int,
+                       help="patches (patch, default 500) or crops (fcn, default 8) per step")
+    train.add_argument("--lr", type=float, help="learning rate: of F and G's SGD (patch, "
+                       "default 0.05) or of Adam (fcn, default 0.001)")
+    train.add_argument("--crop-px", type=int,
+                       help="fcn: side of the square training crops, px (default 96)")
     train.add_argument("--max-samples-per-frame", type=int, default=4000,
-                       help="pixels drawn afresh per frame and epoch (default 4000; 0 = every "
-                            "usable pixel, the paper's ~10 M patches at MD scale)")
-    train.add_argument("--target-clip-mm", type=_clip_arg, default=(15.0, 30.0, None),
-                       metavar="MM|auto[,...]",
-                       help="truncation T of F's target: one value (15 = the paper's), 'auto' "
-                            "(the training data's 99th percentile of |distortion| away from "
-                            "edges, at least 15), or several = one F each on the same patches, "
-                            "the best on the validation frames kept (default 15,30,auto)")
+                       help="patch: pixels drawn afresh per frame and epoch (default 4000; 0 = "
+                            "every usable pixel, the paper's ~10 M patches at MD scale)")
+    train.add_argument("--target-clip-mm", type=_clip_arg, metavar="MM|auto[,...]",
+                       help="truncation T of the target. patch: one value (15 = the paper's), "
+                            "'auto' (the training data's 99th percentile of |distortion| away "
+                            "from edges, at least 15), or several = one F each on the same "
+                            "patches, the best on the validation frames kept (default "
+                            "15,30,auto); fcn: one value (default 100)")
     train.add_argument("--edge-thresholds", choices=("tune", "paper"), default="tune",
-                       help="G's hysteresis thresholds: chosen on the validation frames by the "
-                            "full pipeline's boundary accuracy (default), or the paper's "
-                            "0.3 / 0.6")
+                       help="patch: G's hysteresis thresholds: chosen on the validation frames "
+                            "by the full pipeline's boundary accuracy (default), or the "
+                            "paper's 0.3 / 0.6")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--checkpoint-dir", type=Path, help="checkpoint after every epoch; "
                        "an interrupted run resumes from it")
@@ -79,30 +94,58 @@ def load_training_frames(paths: list[Path]) -> list:
     return usable
 
 
+def _train_patch(args: argparse.Namespace, frames: list, calibration: Any
+                 ) -> tuple[Any, list[dict[str, Any]], dict[str, Any]]:
+    """F and G: (model, history, the summary entries of this kind)."""
+    from ..training.trainer import TrainConfig, train
+
+    given = {"epochs": args.epochs, "batch_size": args.batch_size, "lr_range": args.lr,
+             "lr_boundary": args.lr, "target_clip_mm": args.target_clip_mm}
+    config = TrainConfig(max_samples_per_frame=args.max_samples_per_frame or None,
+                         tune_edge_thresholds=args.edge_thresholds == "tune",
+                         **{k: v for k, v in given.items() if v is not None})
+    model, history = train(frames, calibration, config, seed=args.seed,
+                           checkpoint_dir=args.checkpoint_dir, weights_path=args.output,
+                           overwrite=args.overwrite)
+    return model, history, {key: model.metadata.get(key) for key in (
+        "target_clip_mm", "edge_thresholds", "target_clip_validation")}
+
+
+def _train_fcn(args: argparse.Namespace, frames: list, calibration: Any
+               ) -> tuple[Any, list[dict[str, Any]], dict[str, Any]]:
+    """The fcn kind: (model, history, the summary entries of this kind)."""
+    from ..errors import InputError
+    from ..training.fcn_trainer import FCNTrainConfig, train_fcn
+
+    clip = args.target_clip_mm
+    if clip is not None and (len(clip) != 1 or clip[0] is None):
+        raise InputError("--model fcn takes one --target-clip-mm value in mm, got "
+                         f"{','.join('auto' if c is None else f'{c:g}' for c in clip)}")
+    given = {"epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr,
+             "crop_px": args.crop_px, "target_clip_mm": None if clip is None else clip[0]}
+    config = FCNTrainConfig(**{k: v for k, v in given.items() if v is not None})
+    model, history = train_fcn(frames, calibration, config, seed=args.seed,
+                               checkpoint_dir=args.checkpoint_dir, weights_path=args.output,
+                               overwrite=args.overwrite)
+    return model, history, {"train_config": model.metadata.get("train_config"),
+                            "max_sigma_mm": model.max_sigma_mm}
+
+
 def run_train(args: argparse.Namespace) -> int:
     from ..calibration import load_calibration
-    from ..training.trainer import TrainConfig, train
     from .calibrate import fit_from_file
 
     calibration = (load_calibration(args.calibration) if args.calibration is not None
                    else fit_from_file(args.calibration_captures)[0])
     frames = load_training_frames(args.recordings)
-    config = TrainConfig(epochs=args.epochs, batch_size=args.batch_size,
-                         max_samples_per_frame=args.max_samples_per_frame or None,
-                         target_clip_mm=args.target_clip_mm,
-                         tune_edge_thresholds=args.edge_thresholds == "tune")
-    model, history = train(frames, calibration, config, seed=args.seed,
-                           checkpoint_dir=args.checkpoint_dir, weights_path=args.output,
-                           overwrite=args.overwrite)
+    run = _train_fcn if args.model == "fcn" else _train_patch
+    model, history, extra = run(args, frames, calibration)
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if int(os.environ.get("RANK", "0")) != 0:
         return 0  # under torchrun, rank 0 writes the summary (and the weights)
-    summary = {"weights": str(args.output), "frames": len(frames), "epochs": len(history),
-               "world": world,
-               "final": history[-1] if history else {}, "history": history,
-               "target_clip_mm": model.metadata.get("target_clip_mm"),
-               "edge_thresholds": model.metadata.get("edge_thresholds"),
-               "target_clip_validation": model.metadata.get("target_clip_validation")}
+    summary = {"weights": str(args.output), "model": model.kind, "frames": len(frames),
+               "epochs": len(history), "world": world,
+               "final": history[-1] if history else {}, "history": history, **extra}
     args.output.with_suffix(".json").write_text(json.dumps(summary, indent=2))
     print(json.dumps({k: v for k, v in summary.items() if k != "history"}))
     return 0

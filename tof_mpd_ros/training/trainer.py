@@ -400,17 +400,25 @@ def _fingerprint(cfg: TrainConfig, seed: int, data: TrainingData, val_ids: list[
     return json.dumps(run, sort_keys=True)
 
 
-def _save_checkpoint(path: Path, nets: _Nets, opt: torch.optim.Optimizer, epoch: int,
-                     history: list[dict[str, float]], fingerprint: str) -> None:
-    """Write what :func:`_load_checkpoint` resumes from (atomically)."""
+def save_checkpoint(path: Path, nets: torch.nn.Module, opt: torch.optim.Optimizer, epoch: int,
+                    history: list[dict[str, Any]], fingerprint: str) -> None:
+    """Write what :func:`load_checkpoint` resumes from (atomically): the networks' and the
+    optimiser's state, the epochs done, the history (plain data: numbers, strings, lists and
+    dicts of them, as ``weights_only=True`` loads) and the run's fingerprint. Used by both
+    trainers (:mod:`.fcn_trainer` too)."""
     state = {"epoch": epoch, "nets": nets.state_dict(), "optimizer": opt.state_dict(),
              "history": history, "fingerprint": fingerprint}
     write_atomically(path, lambda stream: torch.save(state, stream))
 
 
-def _load_checkpoint(path: Path, nets: _Nets, opt: torch.optim.Optimizer, fingerprint: str
-                     ) -> tuple[int, list[dict[str, float]]]:
-    """Restore a checkpoint; returns (epochs done, history)."""
+def load_checkpoint(path: Path, nets: torch.nn.Module, opt: torch.optim.Optimizer,
+                    fingerprint: str) -> tuple[int, list[dict[str, Any]]]:
+    """Restore a checkpoint into ``nets`` and ``opt``; returns (epochs done, history).
+
+    Raises:
+        WeightsError: the checkpoint's fingerprint is not ``fingerprint`` (another run), or it
+            cannot be read.
+    """
     try:
         state = torch.load(path, weights_only=True, map_location="cpu")
         if state["fingerprint"] != fingerprint:
@@ -524,7 +532,7 @@ def _train(frames: Sequence[ToFFrame], calibration: IntrinsicCalibration, cfg: T
     if ckpt is not None:
         ckpt.parent.mkdir(parents=True, exist_ok=True)
         if ckpt.exists():
-            done, history = _load_checkpoint(ckpt, nets, opt, fingerprint)
+            done, history = load_checkpoint(ckpt, nets, opt, fingerprint)
             log.info("resuming from %s after epoch %d", ckpt, done)
     per_frame = data.usable[train_ids].flatten(1).sum(1)
     if cfg.max_samples_per_frame is not None:
@@ -543,7 +551,7 @@ def _train(frames: Sequence[ToFFrame], calibration: IntrinsicCalibration, cfg: T
                 history.append(stats)
                 log.info("epoch %d: %s", epoch + 1, stats)
                 if ckpt is not None and ranks.main:
-                    _save_checkpoint(ckpt, nets, opt, epoch + 1, history, fingerprint)
+                    save_checkpoint(ckpt, nets, opt, epoch + 1, history, fingerprint)
                 barrier(ranks)  # no rank runs ahead of the checkpoint it may resume from
     finally:
         torch.set_num_threads(threads)
