@@ -61,6 +61,7 @@ from ..correction.fcn import (
 from ..correction.pipeline import correct
 from ..correction.weights import save_weights
 from ..errors import InputError, WeightsError
+from ..evaluation.uncertainty import WRONG_MM, coverage, flag_precision_recall
 from ..frame import ToFFrame
 from .distributed import (
     Ranks,
@@ -79,7 +80,7 @@ from .trainer import CHECKPOINT_NAME, load_checkpoint, save_checkpoint, split_fr
 log = logging.getLogger(__name__)
 
 #: |error| above which a pixel counts as unreliable in :func:`evaluate_fcn`, mm
-UNRELIABLE_MM = 10.0
+UNRELIABLE_MM = WRONG_MM
 #: validation and evaluation run on this many whole frames at a time
 FRAMES_PER_CHUNK = 8
 
@@ -273,12 +274,6 @@ def _run_epoch(model: torch.nn.Module, opt: torch.optim.Optimizer, data: FCNTrai
             "crops_per_s": n_crops / seconds if seconds > 0 else math.nan}
 
 
-def _rate(hits: np.ndarray, of: np.ndarray) -> float:
-    """Fraction of ``of`` that is in ``hits`` (NaN when ``of`` is empty)."""
-    total = int(of.sum())
-    return float((hits & of).sum() / total) if total else math.nan
-
-
 def error_stats(before: np.ndarray, after: np.ndarray, sigma: np.ndarray,
                 max_sigma_mm: float) -> dict[str, float]:
     """Accuracy and σ calibration over pixels.
@@ -291,9 +286,11 @@ def error_stats(before: np.ndarray, after: np.ndarray, sigma: np.ndarray,
 
     Returns:
         ``pixels``; ``rmse_before_mm`` / ``rmse_after_mm``, ``mae_*``, ``within_{2,5,10}mm_*``
-        (fractions); ``coverage_{1,2,3}sigma`` (fraction with ``|after| <= k σ``);
-        ``median_sigma_mm``; ``flagged_fraction`` (σ > ``max_sigma_mm``), ``flag_precision``
-        and ``flag_recall`` of "flagged" against "|after| > 10 mm" (NaN when undefined); and
+        (fractions); ``coverage_{1,2,3}sigma`` (fraction with ``|after| <= k σ``,
+        :func:`~tof_mpd_ros.evaluation.uncertainty.coverage`); ``median_sigma_mm``;
+        ``flagged_fraction`` (σ > ``max_sigma_mm``), ``flag_precision`` and ``flag_recall`` of
+        "flagged" against "|after| > 10 mm" (NaN when undefined,
+        :func:`~tof_mpd_ros.evaluation.uncertainty.flag_precision_recall`); and
         ``kept_rmse_mm``, the RMSE of the pixels not flagged.
     """
     before, after, sigma = (np.asarray(a, np.float64).reshape(-1) for a in (before, after, sigma))
@@ -305,21 +302,22 @@ def error_stats(before: np.ndarray, after: np.ndarray, sigma: np.ndarray,
         out[f"mae_{name}_mm"] = float(np.mean(err))
         for k in (2, 5, 10):
             out[f"within_{k}mm_{name}"] = float(np.mean(err <= k))
-    err = np.abs(after)
-    for k in (1, 2, 3):
-        out[f"coverage_{k}sigma"] = float(np.mean(err <= k * sigma))
-    flagged, bad = sigma > max_sigma_mm, err > UNRELIABLE_MM
-    out.update(median_sigma_mm=float(np.median(sigma)), flagged_fraction=float(flagged.mean()),
-               flag_precision=_rate(bad, flagged), flag_recall=_rate(flagged, bad),
-               kept_rmse_mm=float(np.sqrt(np.mean(err[~flagged] ** 2))) if (~flagged).any()
+    for k, frac in coverage(after, sigma).items():
+        out[f"coverage_{k}sigma"] = frac
+    flags = flag_precision_recall(after, sigma, max_sigma_mm, UNRELIABLE_MM)
+    kept = sigma <= max_sigma_mm
+    out.update(median_sigma_mm=float(np.median(sigma)),
+               flagged_fraction=flags["flagged_fraction"], flag_precision=flags["precision"],
+               flag_recall=flags["recall"],
+               kept_rmse_mm=float(np.sqrt(np.mean(after[kept] ** 2))) if kept.any()
                else math.nan)
     return out
 
 
 def _nll(correction: np.ndarray, sigma: np.ndarray, target: np.ndarray) -> float:
-    """Mean Gaussian NLL (nats per pixel), as :func:`gaussian_nll`, in float64."""
-    z = (np.asarray(target, np.float64) - correction) / sigma
-    return float(np.mean(0.5 * z ** 2 + np.log(sigma) + 0.5 * math.log(2 * math.pi)))
+    """Mean Gaussian NLL (nats per pixel), :func:`gaussian_nll` in float64."""
+    t = [torch.from_numpy(np.asarray(a, np.float64)) for a in (correction, sigma, target)]
+    return float(gaussian_nll(*t, torch.ones_like(t[0], dtype=torch.bool)))
 
 
 def _validate(net: ResidualFCN, data: FCNTrainingData, val_ids: list[int],
