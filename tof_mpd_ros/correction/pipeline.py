@@ -218,12 +218,16 @@ def correct(
         A :class:`CorrectionResult` shaped like the input.
 
     Raises:
-        InputError: see :func:`check_frame_pair`; an unknown ``precision``; ``threads`` < 1.
+        InputError: see :func:`check_frame_pair`; an unknown ``precision``, or
+            ``"bfloat16"`` for an fcn model; ``threads`` < 1.
     """
     r, a = check_frame_pair(model.shape, range_mm, amplitude)
     if precision not in ("float32", "bfloat16"):
         raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
     if isinstance(model, FCNCorrectionModel):
+        if precision != "float32":
+            raise InputError(f"precision {precision!r} applies to the patch kind's fused "
+                             "first-layer GEMMs; an fcn model runs in float32")
         return _correct_fcn(model, r, a, device, use_range_net)
     params = model.geodesic if geodesic is None else geodesic
     single = r.ndim == 2
@@ -242,6 +246,26 @@ def correct(
     if single:
         result = CorrectionResult(*(x[0] for x in fields))
     return result
+
+
+def require_patch_kind(model: object, what: str) -> None:
+    """Refuse ``model`` unless it is of the patch kind (:class:`CorrectionModel`).
+
+    For the operations that exist only for F, G and the geodesic filter (G's edge
+    probabilities, the edge threshold choice, the geodesic constants...).
+
+    Args:
+        model: a correction model of either kind.
+        what: the operation, for the message (e.g. ``"choosing G's edge thresholds"``).
+
+    Raises:
+        InputError: ``model`` is of another kind, saying which and why.
+    """
+    kind = getattr(model, "kind", None)
+    if kind != CorrectionModel.kind:
+        raise InputError(f"{what} needs a model of the patch kind (F, G and the geodesic "
+                         f"filter); this model is of kind {kind!r}, which has no edge map, "
+                         "no G and no geodesic filter")
 
 
 def _correct_fcn(model: FCNCorrectionModel, r: np.ndarray, a: np.ndarray,

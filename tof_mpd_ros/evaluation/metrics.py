@@ -25,6 +25,7 @@ All results are frozen dataclasses with ``to_dict()`` returning JSON-serialisabl
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -372,3 +373,47 @@ def edge_precision_recall(scores: np.ndarray | Sequence[np.ndarray],
     return EdgePRCurve(tuple(float(x) for x in t), tuple(float(x) for x in precision),
                        tuple(float(x) for x in recall), tuple(float(x) for x in f1),
                        float(tolerance_px), int(n_gt[0]))
+
+
+#: the k of the k-sigma coverage (:class:`SigmaCoverage`)
+COVERAGE_K: tuple[float, ...] = (1.0, 2.0, 3.0)
+
+
+class SigmaCoverage:
+    """How well a predicted per-pixel σ describes the error: the fraction of scored pixels with
+    ``|estimate - reference| <= k σ`` for k = 1, 2, 3, pooled over frames (a calibrated
+    Gaussian σ gives 68.3 / 95.4 / 99.7 %).
+
+    Scored pixels: reference, estimate and σ all finite (a pixel without a prediction has no σ
+    to check). ``add(estimate, sigma, reference)`` per frame, then ``result()``.
+    """
+
+    def __init__(self, ks: Sequence[float] = COVERAGE_K) -> None:
+        self.ks = tuple(float(k) for k in ks)
+        self._within = np.zeros(len(self.ks), np.int64)
+        self._n = 0
+        self._sigmas: list[np.ndarray] = []
+
+    def add(self, estimate_mm: np.ndarray, sigma_mm: np.ndarray,
+            reference_mm: np.ndarray) -> None:
+        """Pool one frame: (H, W) float estimate, σ and reference, mm (NaN = none)."""
+        e, r = _check_pair(estimate_mm, reference_mm)
+        s = check_array("sigma_mm", sigma_mm, shape=r.shape, dtype_kind="fiu")
+        with np.errstate(invalid="ignore"):
+            err = np.abs(e.astype(np.float64) - r)
+            scored = np.isfinite(err) & np.isfinite(s)
+            for i, k in enumerate(self.ks):
+                self._within[i] += int(np.count_nonzero(scored & (err <= k * s)))
+        self._n += int(np.count_nonzero(scored))
+        self._sigmas.append(np.asarray(s[scored], np.float32))
+
+    def result(self) -> dict[str, object]:
+        """``{"k", "observed" (fractions, None without a scored pixel), "gaussian" (the
+        fraction a Gaussian puts within k σ, ``erf(k / √2)``), "pixels", "median_sigma_mm"}``."""
+        n = self._n
+        sigmas = np.concatenate(self._sigmas) if self._sigmas else np.zeros(0, np.float32)
+        return {"k": list(self.ks),
+                "observed": [float(w) / n if n else None for w in self._within],
+                "gaussian": [math.erf(k / math.sqrt(2.0)) for k in self.ks],
+                "pixels": n,
+                "median_sigma_mm": float(np.median(sigmas)) if sigmas.size else None}
