@@ -190,3 +190,23 @@ def test_patch_only_operations_refuse_an_fcn_model(fcn_model) -> None:
         with_thresholds(fcn_model, None)
     with pytest.raises(InputError, match=r"bfloat16.*fcn model runs in float32"):
         correct(fcn_model, f.range_mm, f.amplitude, precision="bfloat16")
+
+
+def test_the_paper_comparison_judges_fcn_in_the_proposed_methods_place() -> None:
+    from tof_mpd_ros.evaluation.benchmark import compare_with_paper
+
+    acc = {"raw": (0.3, 0.2), "calibrated": (0.45, 0.3), "RFD": (0.7, 0.6), "TV": (0.5, 0.35),
+           "fcn": (0.6, 0.5)}
+    misses = {"clip_mm": None, "methods": {
+        "fcn": {"miss_share": 0.4, "noise_limited": 0.2, "beyond_clip": None},
+        "RFD": {"miss_share": 0.3, "noise_limited": 0.6, "beyond_clip": None}}}
+    cmp = compare_with_paper(acc, {"misses": misses}, proposed="fcn")
+    best = cmp["findings"][0]
+    assert best["paper"] == "fcn (in the proposed method's place)" and best["ours"] == "RFD"
+    assert best["why"].startswith("RFD is 10.0 points above fcn.")
+    assert "Most of fcn's misses are bias" in best["why"]
+    assert "truncation" not in best["why"] and "proposed method's misses" not in best["why"]
+    assert cmp["targets"] == {"fcn_beats_every_baseline_whole": False,
+                              "fcn_beats_every_baseline_boundary": False}
+    with pytest.raises(InputError, match="needs raw, calibrated and fcn"):
+        compare_with_paper({"raw": (0.1, 0.1), "calibrated": (0.2, 0.2)}, {}, proposed="fcn")
