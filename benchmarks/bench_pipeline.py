@@ -175,6 +175,8 @@ def load_inputs(frames_path: Path | None, weights_path: Path | None
         from tof_mpd_ros.recordings import RecordingReader
 
         model = load_weights(weights_path)
+        pipeline_module.require_patch_kind(model, "bench_pipeline.py (it times and checks the "
+                                                  "patch kind's engine, F, G and the filter)")
         frames = [(f.range_mm, f.amplitude) for f in RecordingReader(frames_path).frames()]
         return model, frames, f"{frames_path} ({len(frames)} frames), weights {weights_path}"
     frames = _synthetic()

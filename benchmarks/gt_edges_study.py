@@ -33,7 +33,7 @@ import numpy as np
 
 from tof_mpd_ros.correction.default_weights import default_weights_path
 from tof_mpd_ros.correction.edges import GT_HIGH_MM, GT_LOW_MM, ground_truth_edges
-from tof_mpd_ros.correction.pipeline import correct
+from tof_mpd_ros.correction.pipeline import correct, require_patch_kind
 from tof_mpd_ros.correction.weights import load_weights
 from tof_mpd_ros.evaluation.metrics import FrameAccumulator, boundary_region, edge_precision_recall
 from tof_mpd_ros.sim.cell import SimCell
@@ -79,6 +79,7 @@ def main() -> None:
     parser.add_argument("--weights", default=None)
     args = parser.parse_args()
     model = load_weights(args.weights or default_weights_path())
+    require_patch_kind(model, "gt_edges_study.py (it studies G's edges and the geodesic step)")
     t0 = time.perf_counter()
     views = render_views(args.scenes, args.views, args.seed)
     render_s = time.perf_counter() - t0

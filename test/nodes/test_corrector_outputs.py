@@ -7,7 +7,10 @@
 * every parameter but the QoS ones changes while the node runs, through the node's
   ``set_parameters`` service, and the next outputs follow: a bad value (a corrupt weights file,
   crossed edge thresholds, a device the model cannot use) is refused with its reason and the
-  outputs go on unchanged.
+  outputs go on unchanged;
+* weights of the fcn kind load at run time: the confidence image is then the predicted σ in
+  metres (``sigma_mm / 1000`` of ``correct`` itself), the edge map empty, and a patch-only
+  parameter is accepted and ignored with one warning.
 
 The corrector runs in its own process (loopback, this file's ROS domain) with untrained weights
 and hand-made frames; the expected outputs are ``DepthStreamCorrector`` run in this process on
@@ -52,7 +55,8 @@ from tof_mpd_ros.correction.depth_stream import (  # noqa: E402
     decode_amplitude,
     decode_depth,
 )
-from tof_mpd_ros.correction.pipeline import CorrectionModel, GeodesicParams  # noqa: E402
+from tof_mpd_ros.correction.fcn import FCNCorrectionModel  # noqa: E402
+from tof_mpd_ros.correction.pipeline import CorrectionModel, GeodesicParams, correct  # noqa: E402
 from tof_mpd_ros.correction.weights import load_weights, save_weights  # noqa: E402
 from tof_mpd_ros.image_encoding import image_to_array  # noqa: E402
 from tof_mpd_ros.nodes import corrector_node  # noqa: E402
@@ -114,18 +118,23 @@ def cloud_array(msg: PointCloud2) -> np.ndarray:
     return np.frombuffer(bytes(msg.data), dtype).reshape(msg.height, msg.width)
 
 
-def offline(weights_path: Path, *, convention: str = "z",
-            geodesic: GeodesicParams | None = None) -> StreamResult:
-    """What the node should publish for :func:`frame`: the stream corrector run here, on the
-    frame decoded from the messages the node receives."""
+def received_frame() -> tuple[np.ndarray, np.ndarray]:
+    """:func:`frame` as the node decodes it from its messages: depth in mm, amplitude."""
     depth, amplitude = frame()
     depth_msg, amp_msg = image_message(depth, "32FC1"), image_message(amplitude, "32FC1")
     fields = [(m.encoding, m.height, m.width, m.step, False, m.data)
               for m in (depth_msg, amp_msg)]
+    return decode_depth(*fields[0]), decode_amplitude(*fields[1])
+
+
+def offline(weights_path: Path, *, convention: str = "z",
+            geodesic: GeodesicParams | None = None) -> StreamResult:
+    """What the node should publish for :func:`frame`: the stream corrector run here, on the
+    frame decoded from the messages the node receives."""
     model = load_weights(weights_path)
     stream = DepthStreamCorrector(model, input_convention=convention, threads=1,
                                   geodesic=geodesic)
-    return stream.correct(decode_depth(*fields[0]), decode_amplitude(*fields[1]), INTRINSICS)
+    return stream.correct(*received_frame(), INTRINSICS)
 
 
 def assert_depth_equals(msg: Image, depth_mm: np.ndarray) -> None:
@@ -138,11 +147,14 @@ def assert_depth_equals(msg: Image, depth_mm: np.ndarray) -> None:
 
 @pytest.fixture(scope="module")
 def weights(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    """Two untrained models of the window (different seeds) and a corrupt weights file."""
+    """Two untrained models of the window (different seeds), one of the fcn kind and a
+    corrupt weights file."""
     out = tmp_path_factory.mktemp("weights")
     paths = {name: save_weights(out / f"{name}.npz", CorrectionModel.untrained(
         IntrinsicCalibration.identity(*MODEL_HW), seed=seed))
         for name, seed in (("a", 3), ("b", 11))}
+    paths["fcn"] = save_weights(out / "fcn.npz", FCNCorrectionModel.untrained(
+        IntrinsicCalibration.identity(*MODEL_HW), seed=4))
     data = paths["a"].read_bytes()
     paths["corrupt"] = out / "corrupt.npz"
     paths["corrupt"].write_bytes(data[: len(data) // 2])
@@ -504,3 +516,39 @@ def test_a_device_the_model_cannot_use_and_qos_parameters_are_refused(
         [result] = rig.set(**{name: value})
         assert not result.successful and "read-only" in result.reason, (name, result.reason)
     assert_depth_equals(rig.round_trip(("output",))["output"], offline(weights["a"]).depth_mm)
+
+
+def test_weights_of_the_fcn_kind_load_at_run_time_and_publish_sigma_in_metres(
+        rig: Rig, weights: dict[str, Path]) -> None:
+    """Switched to fcn weights, the node publishes that model's depth, an empty edge map and,
+    as confidence, the predicted σ in metres: in the radial convention exactly ``sigma_mm /
+    1000`` of ``correct`` on the decoded window (z: the σ of the z-depth, as the stream
+    corrector computes it). A patch-only parameter set meanwhile is accepted, ignored and
+    logged once. Back to the patch weights, the outputs are theirs again."""
+    rig.accept(weights_path=str(weights["fcn"]))
+    try:
+        out = rig.round_trip(("output", "confidence", "edges"))
+        expected = offline(weights["fcn"])
+        assert_depth_equals(out["output"], expected.depth_mm)
+        assert out["confidence"].encoding == "32FC1"
+        np.testing.assert_allclose(decoded(out["confidence"]), expected.sigma_mm / 1000.0,
+                                   rtol=1e-6, equal_nan=True)
+        assert not decoded(out["edges"]).any()
+
+        rig.accept(input_convention="radial", edge_low=0.2)
+        out = rig.round_trip(("output", "confidence"))
+        depth_mm, amplitude = received_frame()
+        crop = (slice(TOP, TOP + MODEL_HW[0]), slice(LEFT, LEFT + MODEL_HW[1]))
+        direct = correct(load_weights(weights["fcn"]), depth_mm[crop], amplitude[crop])
+        confidence = decoded(out["confidence"])
+        np.testing.assert_allclose(confidence, direct.sigma_mm / 1000.0, rtol=1e-6,
+                                   equal_nan=True)
+        np.testing.assert_array_equal(np.isnan(confidence), ~direct.valid)
+        assert 1e-4 < np.nanmin(confidence) and np.nanmax(confidence) < 0.05  # mm of σ, in m
+        assert_depth_equals(out["output"], direct.range_mm)
+        warned = "ignoring edge_low=0.2: weights of the fcn kind have no G"
+        assert rig.spin_until(lambda: warned in rig.log.read_text(), 30.0)
+    finally:
+        rig.accept(weights_path=str(weights["a"]), input_convention="z", edge_low=-1.0)
+    assert_depth_equals(rig.round_trip(("output",))["output"], offline(weights["a"]).depth_mm)
+    assert rig.log.read_text().count("ignoring edge_low") == 1

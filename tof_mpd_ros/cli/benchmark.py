@@ -1,5 +1,6 @@
-"""``tof-mpd benchmark``: raw, calibrated, the six baselines, F alone and the full method on the
-same test recordings, with the paper's figures, a ranking and an HTML report."""
+"""``tof-mpd benchmark``: raw, calibrated, the six baselines, F alone and the full method (or a
+model of the fcn kind, as ``fcn``) on the same test recordings, with the paper's figures, a
+ranking and an HTML report."""
 
 from __future__ import annotations
 
@@ -18,7 +19,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "calibration; fits RF-WF and RFD on the training frames minus a held-out "
                     "validation split (whole capture sessions) and grid-searches every "
                     "baseline (JBF, WMF, RF-WF, RFD, TV, PD) there; then runs raw, calibrated, "
-                    "each baseline, F alone and the full method on the same test frames. "
+                    "each baseline, F alone and the full method on the same test frames (weights "
+                    "of the fcn kind: the network as method 'fcn' instead of F alone and the "
+                    "full method). "
                     "Writes OUT/results.json (every number: curves, 2/5/10 mm table, MAE, "
                     "runtime per frame, grids searched and chosen, ranking vs the paper), "
                     "accuracy curves, qualitative panels, range profiles, edge P/R and "
@@ -80,7 +83,8 @@ def run_benchmark_command(args: argparse.Namespace) -> int:
         "test_recordings": [str(p) for p in args.test],
         "weights": str(args.weights or "shipped")})
     table = result.table()
-    print(json.dumps({"output": str(args.output), "n_test_frames": result.n_frames,
+    print(json.dumps({"output": str(args.output), "model_kind": result.kind,
+                      "n_test_frames": result.n_frames,
                       "ranking_5mm_whole": result.comparison["ranking_whole"],
                       "targets": result.comparison["targets"],
                       "within_5mm": {m: {"whole": round(r["whole_5mm"], 4),

@@ -13,9 +13,12 @@ from .output import add_output
 def register(subparsers: argparse._SubParsersAction) -> None:
     correct = subparsers.add_parser(
         "correct", help="correct every frame of a recording or NPZ",
-        description="Apply calibration -> F -> G -> geodesic filtering to every frame of a "
+        description="Apply calibration -> F -> G -> geodesic filtering (or, with weights of "
+                    "the fcn kind, calibration -> the network) to every frame of a "
                     "recording (directory) or NPZ and write the same kind of file with the "
-                    "corrected radial range (references, poses and stamps are kept). Frames "
+                    "corrected radial range (references, poses and stamps are kept); an NPZ "
+                    "written with fcn weights also holds sigma_mm, the predicted standard "
+                    "deviation per pixel (a recording has no topic for it). Frames "
                     "larger than the weights' window (180x140 for the shipped weights) are "
                     "cropped to its central window, as the corrector node does: the output "
                     "holds the window, with its intrinsics. Tens of milliseconds per 180x140 "
@@ -37,39 +40,61 @@ def load_model(path: Path | None):
 
 
 def run_correct(args: argparse.Namespace) -> int:
+    from ..recordings import is_npz, save_npz, write_frames
+
+    model = load_model(args.weights)
+    height, width = model.shape
+    seconds: list[float] = []
+    cropped_from: set[tuple[int, int]] = set()
+    sigmas: list = []
+    frames = _corrected_frames(args, model, seconds, cropped_from, sigmas)
+    # An fcn model predicts sigma: an .npz has room for it beside the frames, a recording
+    # directory has no topic for it.
+    sigma_written = model.kind == "fcn" and is_npz(args.output)
+    if sigma_written:
+        import numpy as np
+
+        frames = list(frames)
+        count = save_npz(args.output, frames, overwrite=args.overwrite,
+                         extra={"sigma_mm": np.stack(sigmas)} if frames else None)
+    else:
+        count = write_frames(args.output, frames, overwrite=args.overwrite)
+    ms = sorted(1e3 * s for s in seconds)
+    summary = {"output": str(args.output), "frames": count, "model_kind": model.kind,
+               "median_ms_per_frame": ms[len(ms) // 2] if ms else None,
+               "window": [width, height],
+               "cropped_from": [[w, h] for h, w in sorted(cropped_from)],
+               "sigma_mm_written": sigma_written}
+    print(json.dumps(summary))
+    return 0
+
+
+def _corrected_frames(args: argparse.Namespace, model, seconds: list[float],
+                      cropped_from: set[tuple[int, int]], sigmas: list):
+    """The corrected frames of ``args.input``, one at a time; appends each frame's correction
+    time to ``seconds``, the sizes cropped from to ``cropped_from`` and (fcn kind) the
+    predicted sigma, (H, W) mm, to ``sigmas``."""
     from dataclasses import replace
 
     from tqdm import tqdm
 
     from ..correction.pipeline import correct
     from ..errors import InputError
-    from ..recordings import count_frames, iter_frames, write_frames
+    from ..recordings import count_frames, iter_frames
 
-    model = load_model(args.weights)
     height, width = model.shape
-    seconds: list[float] = []
-    cropped_from: set[tuple[int, int]] = set()
-
-    def corrected():
-        for frame in tqdm(iter_frames(args.input), total=count_frames(args.input),
-                          desc="correcting", unit="frame"):
-            if frame.intrinsics.shape != model.shape:  # the node's central window
-                k = frame.intrinsics
-                if k.width < width or k.height < height:
-                    raise InputError(f"{args.input}: frames are {k.width}x{k.height}, smaller "
-                                     f"than the weights' {width}x{height} window")
-                cropped_from.add(k.shape)
-                frame = frame.cropped(width, height)
-            start = time.perf_counter()
-            result = correct(model, frame.range_mm, frame.amplitude, device=args.device)
-            seconds.append(time.perf_counter() - start)
-            yield replace(frame, range_mm=result.range_mm)
-
-    count = write_frames(args.output, corrected(), overwrite=args.overwrite)
-    ms = sorted(1e3 * s for s in seconds)
-    summary = {"output": str(args.output), "frames": count,
-               "median_ms_per_frame": ms[len(ms) // 2] if ms else None,
-               "window": [width, height],
-               "cropped_from": [[w, h] for h, w in sorted(cropped_from)]}
-    print(json.dumps(summary))
-    return 0
+    for frame in tqdm(iter_frames(args.input), total=count_frames(args.input),
+                      desc="correcting", unit="frame"):
+        if frame.intrinsics.shape != model.shape:  # the node's central window
+            k = frame.intrinsics
+            if k.width < width or k.height < height:
+                raise InputError(f"{args.input}: frames are {k.width}x{k.height}, smaller "
+                                 f"than the weights' {width}x{height} window")
+            cropped_from.add(k.shape)
+            frame = frame.cropped(width, height)
+        start = time.perf_counter()
+        result = correct(model, frame.range_mm, frame.amplitude, device=args.device)
+        seconds.append(time.perf_counter() - start)
+        if result.sigma_mm is not None:
+            sigmas.append(result.sigma_mm)
+        yield replace(frame, range_mm=result.range_mm)

@@ -16,8 +16,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "fraction of pixels within 1..20 mm (whole image and within 5 px of "
                     "boundaries), MAE, RMSE for raw, calibrated, F alone, geodesic with G alone "
                     "and the full method; G's edge precision/recall against Canny on the raw ToF "
-                    "image. Writes OUT/results.json, PNG plots and OUT/index.html. About 0.1-0.3 "
-                    "s per frame.")
+                    "image. Weights of the fcn kind: raw, calibrated and fcn, no edge numbers "
+                    "(it has no G), and the 1/2/3-sigma coverage of its predicted sigma. Writes "
+                    "OUT/results.json, PNG plots and OUT/index.html. About 0.1-0.3 s per frame.")
     evaluate.add_argument("recordings", type=Path, nargs="+", help="test recordings / .npz")
     add_output(evaluate, "output directory")
     evaluate.add_argument("--weights", type=Path, help="weights file (default: shipped)")
@@ -36,7 +37,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     write_component_report(evaluation, args.output,
                            extra={"recordings": [str(p) for p in args.recordings],
                                   "weights": str(args.weights or "shipped")})
-    print(json.dumps({"output": str(args.output), "n_frames": evaluation.n_frames,
-                      "summary_5mm": evaluation.summary(5.0),
-                      "edges_max_f1": {k: c.max_f1 for k, c in evaluation.edges.items()}}))
+    print(json.dumps({"output": str(args.output), "model_kind": evaluation.kind,
+                      "n_frames": evaluation.n_frames, "summary_5mm": evaluation.summary(5.0),
+                      "edges_max_f1": {k: c.max_f1 for k, c in evaluation.edges.items()},
+                      "sigma_coverage": evaluation.coverage or None}))
     return 0

@@ -8,6 +8,11 @@ and testable without ROS.
 
 Every rejected frame raises :class:`FrameRejected`, whose ``reason`` is one of
 :data:`DROP_REASONS`: the node counts drops under these keys on ``/diagnostics``.
+
+Either kind of model: the patch kind (F, G, geodesic filter) or the fcn kind (one network that
+also predicts σ). For the fcn kind there is no edge map (all False), no geodesic constants, and
+the confidence image the node publishes (:func:`confidence_image`) is the predicted σ in metres
+instead of G's unitless boundary probability.
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ from ..image_encoding import (
 from ..validation import check_array
 from . import geodesic
 from .edges import edge_map_from_best
+from .fcn import FCNCorrectionModel
 from .pipeline import CorrectionModel, GeodesicParams, correct
 
 CONVENTIONS = ("z", "radial")
@@ -69,10 +75,12 @@ class StreamResult:
     Attributes:
         depth_mm: (h, w) float32 corrected depth in mm (z-depth or radial range, like the
             input), NaN = invalid; h, w = the crop.
-        edges: (h, w) bool boundary map from G.
+        edges: (h, w) bool boundary map from G (all False for the fcn kind).
         confidence: (h, w) float32 in [0, 1], unitless: the probability per G that the pixel is
-            *not* on an object boundary, ``1 - max_k P_edge,k``; 0 on invalid pixels (see
-            :class:`~.pipeline.CorrectionResult`).
+            *not* on an object boundary, ``1 - max_k P_edge,k``; for the fcn kind
+            ``1 - σ / max_sigma_mm`` clipped; 0 on invalid pixels (see
+            :class:`~.pipeline.CorrectionResult`). The node publishes
+            :func:`confidence_image`, which is σ in metres for the fcn kind.
         intrinsics: intrinsics of the cropped output images.
         valid_fraction: fraction of input pixels in the crop that were valid.
         input_mm: (h, w) float32 input depth of the same crop in mm, same convention,
@@ -80,6 +88,11 @@ class StreamResult:
         amplitude: (h, w) float32 input amplitude of the crop, in the input's units (NaN =
             not finite).
         convention: ``"z"`` or ``"radial"``, the convention of ``depth_mm`` and ``input_mm``.
+        sigma_mm: (h, w) float32 predicted standard deviation of ``depth_mm`` in mm, in the same
+            convention (z: the radial σ times z / r, the ray's factor, so it is the σ of the
+            z-depth published), NaN = invalid input; pixels whose σ exceeds the model's
+            ``max_sigma_mm`` keep it (their depth is NaN). The fcn kind only; None for the
+            patch kind.
     """
 
     depth_mm: np.ndarray
@@ -90,6 +103,20 @@ class StreamResult:
     input_mm: np.ndarray
     amplitude: np.ndarray
     convention: str
+    sigma_mm: np.ndarray | None = None
+
+
+def confidence_image(result: StreamResult) -> np.ndarray:
+    """The corrector node's ``depth_corrected/confidence`` image of ``result``.
+
+    Returns:
+        (h, w) float32: for the patch kind ``result.confidence`` (unitless, in [0, 1], 0 on
+        invalid pixels); for the fcn kind the predicted σ of the published depth in metres
+        (``sigma_mm / 1000``, NaN on invalid pixels, like every metric image of REP 118).
+    """
+    if result.sigma_mm is None:
+        return result.confidence
+    return (result.sigma_mm.astype(np.float64) * 1e-3).astype(np.float32)
 
 
 def points_m(depth_mm: np.ndarray, intrinsics: Intrinsics, convention: str) -> np.ndarray:
@@ -174,7 +201,7 @@ def decode_amplitude(encoding: str, height: int, width: int, step: int, is_bigen
 
 
 class DepthStreamCorrector:
-    """Applies a :class:`CorrectionModel` to full camera frames.
+    """Applies a correction model of either kind to full camera frames.
 
     The model's (H, W) is the processed window: the central crop of each input frame. Inputs in
     z-depth are converted to radial range for the model and the output back to z-depth, per
@@ -191,11 +218,15 @@ class DepthStreamCorrector:
             corrector built on another thread takes effect on the thread that corrects). On a
             small, busy CPU one thread is faster than spinning OpenMP workers.
         geodesic: edge thresholds and geodesic filter constants replacing the model's (the
-            weights file's); None keeps the model's.
+            weights file's); None keeps the model's. Patch kind only (an fcn model has none:
+            its ``geodesic`` is None).
+
+    Raises:
+        InputError: an unknown convention, ``threads`` < 0, or ``geodesic`` for an fcn model.
     """
 
-    def __init__(self, model: CorrectionModel, *, input_convention: str = "z",
-                 device: str = "cpu", threads: int = 0,
+    def __init__(self, model: CorrectionModel | FCNCorrectionModel, *,
+                 input_convention: str = "z", device: str = "cpu", threads: int = 0,
                  geodesic: GeodesicParams | None = None) -> None:
         if input_convention not in CONVENTIONS:
             raise InputError(f"input_convention must be one of {CONVENTIONS}, "
@@ -204,7 +235,15 @@ class DepthStreamCorrector:
             raise InputError(f"threads must be >= 0, got {threads}")
         self.threads = threads
         self.model = model
-        self.geodesic = model.geodesic if geodesic is None else geodesic
+        self.kind = model.kind
+        if isinstance(model, FCNCorrectionModel):
+            if geodesic is not None:
+                raise InputError("edge thresholds and geodesic constants apply to the patch "
+                                 "kind only; this model is of kind 'fcn' (no G, no geodesic "
+                                 "filter)")
+            self.geodesic: GeodesicParams | None = None
+        else:
+            self.geodesic = model.geodesic if geodesic is None else geodesic
         self.input_convention = input_convention
         self.device = device
         self.crop_height, self.crop_width = model.shape
@@ -222,6 +261,8 @@ class DepthStreamCorrector:
         amplitude = np.full((h, w), 1000.0, np.float32)
         t0 = time.perf_counter()
         self.correct(depth, amplitude, Intrinsics.from_fov(w, h, 60.0))
+        if self.geodesic is None:  # the fcn kind: no edge or geodesic kernel to compile
+            return time.perf_counter() - t0
         # A plane has no edges and no holes: also run the edge and geodesic kernels on a frame
         # that has both, so no code path is compiled on a live frame.
         edges = np.zeros((h, w), bool)
@@ -277,13 +318,16 @@ class DepthStreamCorrector:
                 torch.set_num_threads(self.threads)
             numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
         result = correct(self.model, range_mm, amp, device=self.device, geodesic=self.geodesic)
-        out = result.range_mm
+        out, sigma = result.range_mm, result.sigma_mm
         if self.input_convention == "z":
             out = crop_intrinsics.radial_to_z(out)
+            if sigma is not None:  # z = r * (z / r) per pixel: σ scales alike
+                sigma = crop_intrinsics.radial_to_z(sigma)
         return StreamResult(out.astype(np.float32), result.edges, result.confidence,
                             crop_intrinsics, float(valid.mean()),
                             np.where(measured, depth, np.float32(np.nan)), amp,
-                            self.input_convention)
+                            self.input_convention,
+                            None if sigma is None else sigma.astype(np.float32))
 
 
 def _wxh(shape: tuple[int, ...]) -> str:

@@ -245,6 +245,26 @@ def correct(
     return result
 
 
+def require_patch_kind(model: object, what: str) -> None:
+    """Refuse ``model`` unless it is of the patch kind (:class:`CorrectionModel`).
+
+    For the operations that exist only for F, G and the geodesic filter (G's edge
+    probabilities, the edge threshold choice, the geodesic constants...).
+
+    Args:
+        model: a correction model of either kind.
+        what: the operation, for the message (e.g. ``"choosing G's edge thresholds"``).
+
+    Raises:
+        InputError: ``model`` is of another kind, saying which and why.
+    """
+    kind = getattr(model, "kind", None)
+    if kind != CorrectionModel.kind:
+        raise InputError(f"{what} needs a model of the patch kind (F, G and the geodesic "
+                         f"filter); this model is of kind {kind!r}, which has no edge map, "
+                         "no G and no geodesic filter")
+
+
 def _correct_fcn(model: FCNCorrectionModel, r: np.ndarray, a: np.ndarray,
                  device: torch.device | str, use_net: bool, precision: str
                  ) -> CorrectionResult:

@@ -38,8 +38,9 @@ _STYLE: dict[str, dict] = {
     "PD": {"color": "tab:pink"},
     "F": {"color": "tab:orange", "linestyle": "-."},
     "proposed": {"color": "tab:red", "linewidth": 2.6},
+    "fcn": {"color": "tab:red", "linewidth": 2.6},
 }
-LABELS = {"F": "F alone", "proposed": "proposed (full)"}
+LABELS = {"F": "F alone", "proposed": "proposed (full)", "fcn": "fcn (U-Net with σ)"}
 
 
 def _style(name: str) -> dict:

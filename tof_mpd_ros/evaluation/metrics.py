@@ -25,6 +25,7 @@ All results are frozen dataclasses with ``to_dict()`` returning JSON-serialisabl
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -33,6 +34,13 @@ import numpy as np
 
 from ..errors import InputError
 from ..validation import check_array, check_same_shape
+from .uncertainty import (
+    COVERAGE_K,
+    coverage,
+    flag_precision_recall,
+    gaussian_coverage,
+    reliability_curve,
+)
 
 DEFAULT_THRESHOLDS_MM: tuple[float, ...] = tuple(float(t) for t in range(1, 21))
 BOUNDARY_RADIUS_PX = 5
@@ -372,3 +380,61 @@ def edge_precision_recall(scores: np.ndarray | Sequence[np.ndarray],
     return EdgePRCurve(tuple(float(x) for x in t), tuple(float(x) for x in precision),
                        tuple(float(x) for x in recall), tuple(float(x) for x in f1),
                        float(tolerance_px), int(n_gt[0]))
+
+
+class SigmaCoverage:
+    """How well a predicted per-pixel σ describes the error, pooled over frames: the fraction of
+    scored pixels with ``|estimate - reference| <= k σ`` for k = 1, 2, 3 (a calibrated
+    Gaussian σ gives 68.3 / 95.4 / 99.7 %), the reliability curve, and with ``max_sigma_mm``
+    the precision / recall of "σ > max_sigma_mm" as a detector of "|error| > 10 mm"
+    (:mod:`.uncertainty`, which computes each).
+
+    Scored pixels: reference, estimate and σ all finite (a pixel without a prediction has no σ
+    to check). ``add(estimate, sigma, reference)`` per frame, then ``result()``. Keeps the
+    scored errors and σ (float32, 8 bytes per pixel).
+    """
+
+    def __init__(self, ks: Sequence[float] = COVERAGE_K,
+                 max_sigma_mm: float | None = None) -> None:
+        self.ks = tuple(float(k) for k in ks)
+        self.max_sigma_mm = max_sigma_mm
+        self._errors: list[np.ndarray] = []
+        self._sigmas: list[np.ndarray] = []
+
+    def add(self, estimate_mm: np.ndarray, sigma_mm: np.ndarray,
+            reference_mm: np.ndarray) -> None:
+        """Pool one frame: (H, W) float estimate, σ and reference, mm (NaN = none)."""
+        e, r = _check_pair(estimate_mm, reference_mm)
+        s = check_array("sigma_mm", sigma_mm, shape=r.shape, dtype_kind="fiu")
+        with np.errstate(invalid="ignore"):
+            err = e.astype(np.float64) - r
+        scored = np.isfinite(err) & np.isfinite(s)
+        self._errors.append(err[scored].astype(np.float32))
+        self._sigmas.append(np.asarray(s[scored], np.float32))
+
+    def pooled(self) -> tuple[np.ndarray, np.ndarray]:
+        """(errors, σ) of every scored pixel so far, (M,) float32 mm each."""
+        if not self._errors:
+            return np.zeros(0, np.float32), np.zeros(0, np.float32)
+        return np.concatenate(self._errors), np.concatenate(self._sigmas)
+
+    def result(self) -> dict[str, object]:
+        """``{"k", "observed" (fractions, None without a scored pixel), "gaussian" (the
+        fraction a Gaussian puts within k σ), "pixels", "median_sigma_mm", "reliability"
+        (:func:`.uncertainty.reliability_curve` as lists), "flags" (with ``max_sigma_mm``)}``."""
+        err, sigma = self.pooled()
+        cover = coverage(err, sigma, self.ks)
+        curve = reliability_curve(err, sigma)
+        out: dict[str, object] = {
+            "k": list(self.ks),
+            "observed": [None if math.isnan(v) else v for v in cover.values()],
+            "gaussian": [gaussian_coverage(k) for k in self.ks],
+            "pixels": int(err.size),
+            "median_sigma_mm": float(np.median(sigma)) if sigma.size else None,
+            "reliability": {"sigma_rms_mm": curve.sigma_rms_mm.tolist(),
+                            "error_rms_mm": curve.error_rms_mm.tolist(),
+                            "count": curve.count.tolist()}}
+        if self.max_sigma_mm is not None:
+            out["flags"] = {k: _finite_or_none(v) for k, v in flag_precision_recall(
+                err, sigma, self.max_sigma_mm).items()}
+        return out

@@ -9,8 +9,11 @@ fed with the same dict that is written to ``results.json``.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+import numpy as np
 
 from ..templates import write_page
 from .components import ComponentEvaluation
@@ -20,19 +23,37 @@ if TYPE_CHECKING:
     from .benchmark import BenchmarkResult
 
 
+def _reliability_plot(cov: dict, path: Path) -> Path:
+    """The fcn kind's σ reliability curve and k-σ coverage (:mod:`.uncertainty`)."""
+    from .uncertainty import ReliabilityCurve, plot_reliability
+
+    rel = cov["reliability"]
+    curve = ReliabilityCurve(np.asarray(rel["sigma_rms_mm"], float),
+                             np.asarray(rel["error_rms_mm"], float),
+                             np.asarray(rel["count"], np.int64))
+    observed = {f"{k:g}": (math.nan if v is None else v)
+                for k, v in zip(cov["k"], cov["observed"], strict=True)}
+    return plot_reliability(curve, observed, path, title="predicted σ against the actual error")
+
+
 def write_component_report(evaluation: ComponentEvaluation, out_dir: str | Path, *,
                            title: str = "tof_mpd_ros evaluation",
                            extra: dict | None = None) -> Path:
-    """Write the component analysis; returns the path of ``results.json``."""
+    """Write the component analysis of either kind of model (the page names the kind; an fcn
+    model has no edge curves, so no edge plot, and its σ coverage instead); returns the path
+    of ``results.json``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     results = {**evaluation.to_dict(), **(extra or {})}
     (out / "results.json").write_text(json.dumps(results, indent=2))
     plots = [plot_accuracy_curves(evaluation.stages, out / "accuracy_components.png",
-                                  title="component analysis"),
-             plot_precision_recall(evaluation.edges, out / "edges_precision_recall.png")]
+                                  title=f"component analysis ({evaluation.kind} model)")]
+    if evaluation.edges:
+        plots.append(plot_precision_recall(evaluation.edges, out / "edges_precision_recall.png"))
+    if evaluation.coverage:
+        plots.append(_reliability_plot(evaluation.coverage, out / "sigma_reliability.png"))
     for i, example in enumerate(evaluation.examples):
-        for stage in ("raw", "calibrated", "full"):
+        for stage in ("raw", "calibrated", evaluation.final_stage):
             plots.append(plot_error_map(example[stage], example["reference"],
                                         out / f"error_frame{i}_{stage}.png",
                                         title=f"frame {i}: {stage}"))
@@ -53,8 +74,6 @@ def write_benchmark_report(result: BenchmarkResult, out_dir: str | Path, *,
     Returns:
         The path of ``results.json``.
     """
-    from .benchmark import PROPOSED
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     results = {**result.to_dict(), **(extra or {})}
@@ -63,14 +82,15 @@ def write_benchmark_report(result: BenchmarkResult, out_dir: str | Path, *,
     (out / "results.json").write_text(json.dumps(results, indent=2, allow_nan=False,
                                                  default=_json_default))
     write_page(out / "index.html", "benchmark.html", title=title, results=results,
-               proposed=PROPOSED)
+               proposed=result.proposed)
     return out / "results.json"
 
 
 def _benchmark_figures(result: BenchmarkResult, out: Path) -> dict[str, list[Path]]:
     """Draw the benchmark's PNGs into ``out``: kind -> paths (``curves``, ``qualitative``,
-    ``profiles``, ``edges``, ``components``), in the page's order."""
-    from .benchmark import METHODS, PROPOSED
+    ``profiles``, ``edges`` (none for an fcn model: no G), ``components``), in the page's
+    order."""
+    from .benchmark import methods_for
     from .benchmark_plots import plot_method_curves, plot_profile, plot_qualitative
 
     figures: dict[str, list[Path]] = {"curves": [], "qualitative": [], "profiles": [],
@@ -82,17 +102,19 @@ def _benchmark_figures(result: BenchmarkResult, out: Path) -> dict[str, list[Pat
             out / f"accuracy_{region}.png", title=f"accuracy, {label}"))
     best = result.best_baselines(2)
     for i, ex in enumerate(result.examples):
-        ordered = {m: ex["estimates"][m] for m in METHODS if m in ex["estimates"]}
+        ordered = {m: ex["estimates"][m] for m in methods_for(result.kind)
+                   if m in ex["estimates"]}
         figures["qualitative"].append(plot_qualitative(
             ex["reference"], ordered, out / f"qualitative_frame{i}.png",
             line=ex["line"], title=f"test frame {ex['index']}: range (top) and error (bottom)"))
         if ex["line"] is not None:
             figures["profiles"].append(plot_profile(
-                ex["profiles"], ["raw", "calibrated", *best, PROPOSED],
+                ex["profiles"], ["raw", "calibrated", *best, result.proposed],
                 out / f"profile_frame{i}.png", line=ex["line"],
                 title=f"test frame {ex['index']}: range along the red arrow"))
-    figures["edges"].append(plot_precision_recall(result.components.edges,
-                                                  out / "edges_precision_recall.png"))
+    if result.components.edges:
+        figures["edges"].append(plot_precision_recall(result.components.edges,
+                                                      out / "edges_precision_recall.png"))
     figures["components"].append(plot_accuracy_curves(result.components.stages,
                                                       out / "accuracy_components.png",
                                                       title="component analysis"))

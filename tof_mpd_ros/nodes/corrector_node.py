@@ -12,6 +12,13 @@ frames (it reads :attr:`CorrectorNode.stream` once per frame).
 Drop reasons are the keys of :data:`~tof_mpd_ros.correction.depth_stream.DROP_REASONS`. The
 pairing stage (``no_amplitude``, ``no_depth``, ``out_of_order``) counts *images*; every later
 stage counts depth/amplitude *pairs*.
+
+Weights of either kind: the patch kind (F, G, geodesic filter) or the fcn kind (one network
+with a predicted σ). With fcn weights the edge image is all 0, the confidence image is the
+predicted σ of the published depth in metres (NaN on invalid pixels), and the patch-only
+parameters (:data:`PATCH_ONLY_PARAMETERS`) are ignored, with one warning in the log each time
+a correction is built with one of them set away from its default. A weights file of the other
+kind can be loaded at run time like any other (``weights_path``).
 """
 
 from __future__ import annotations
@@ -39,11 +46,13 @@ from ..correction.depth_stream import (
     DepthStreamCorrector,
     FrameRejected,
     StreamResult,
+    confidence_image,
     correction_m,
     decode_amplitude,
     decode_depth,
     points_m,
 )
+from ..correction.fcn import FCNCorrectionModel
 from ..correction.pipeline import CorrectionModel, GeodesicParams
 from ..correction.weights import load_weights
 from ..errors import InputError, TofMpdError
@@ -62,6 +71,8 @@ from .ros_messages import (
 
 # Said by every QoS parameter: a live endpoint's QoS cannot change.
 _QOS_READ_ONLY = " Read-only: QoS cannot change on a live endpoint; set it at start-up."
+# Said by every parameter of G and the geodesic filter (PATCH_ONLY_PARAMETERS).
+_PATCH_ONLY = " Patch kind only: ignored (with a warning) for weights of the fcn kind."
 
 # The node's parameters; config/corrector.yaml mirrors these defaults (a test keeps them equal).
 # All but the QoS ones change at run time (``ros2 param set``).
@@ -103,16 +114,20 @@ PARAMETERS = (
     # trainer chose on validation frames (the node logs the values in use).
     P("edge_low", -1.0, "Hysteresis: lower threshold on G's edge probability (0-1); a pixel "
       "above it is an edge when connected to one above edge_high. Negative = the weights "
-      "file's value (0.3 untrained).", min_value=-1.0, max_value=1.0),
+      "file's value (0.3 untrained)." + _PATCH_ONLY, min_value=-1.0, max_value=1.0),
     P("edge_high", -1.0, "Hysteresis: upper threshold on G's edge probability (0-1, >= "
       "edge_low); every pixel above it is an edge. Negative = the weights file's value "
-      "(0.6 untrained).", min_value=-1.0, max_value=1.0),
+      "(0.6 untrained)." + _PATCH_ONLY, min_value=-1.0, max_value=1.0),
     P("geodesic_k", 0, "Neighbours K the geodesic filter averages per pixel (the paper's "
-      "81); 0 = the weights file's value.", min_value=0, max_value=1000),
+      "81); 0 = the weights file's value." + _PATCH_ONLY, min_value=0, max_value=1000),
     P("geodesic_sigma", 0.0, "Bandwidth sigma of the geodesic filter's Gaussian weights, in "
-      "grid steps of the filter (pixels; the paper's 2); 0 = the weights file's value.",
-      min_value=0.0, max_value=100.0),
+      "grid steps of the filter (pixels; the paper's 2); 0 = the weights file's value."
+      + _PATCH_ONLY, min_value=0.0, max_value=100.0),
 )
+# The parameters of the patch kind's G and geodesic filter: weights of the fcn kind have
+# neither, so there they are ignored (logged once per correction built, not refused, so that
+# one parameter file serves weights of either kind).
+PATCH_ONLY_PARAMETERS = ("edge_low", "edge_high", "geodesic_k", "geodesic_sigma")
 # Parameters whose change builds a new correction before it is accepted; the first two load
 # the weights file again (a new model, warmed up on the device before the worker sees it).
 RELOAD_PARAMETERS = ("weights_path", "device")
@@ -267,7 +282,9 @@ class CorrectorNode(Node):
     publishes ``depth_corrected/image`` and beside it ``edges`` (mono8, 255 = boundary from
     G), ``confidence`` (32FC1, unitless in [0, 1]: the probability per G that the pixel is not
     on an object boundary, ``1 - max_k P_edge,k``, where mixed pixels and over-smoothing make
-    ToF least reliable; 0 on invalid pixels) and ``camera_info`` (the crop's); while something
+    ToF least reliable; 0 on invalid pixels. With weights of the fcn kind: the predicted
+    standard deviation of the published depth in metres, NaN on invalid pixels, and ``edges``
+    all 0) and ``camera_info`` (the crop's); while something
     subscribes to them, ``points`` and ``input_points`` (organized PointCloud2 of the
     corrected and the input depth of the crop: x, y, z float32 metres in the optical frame,
     intensity = amplitude, NaN x/y/z for invalid pixels) and ``correction`` (32FC1 metres,
@@ -333,6 +350,15 @@ class CorrectorNode(Node):
             f"correcting {self.topics['depth']} + {self.topics['amplitude']} -> "
             f"{self.pub_depth.topic_name} ({_describe(self.stream, self.weights)}); "
             f"warm-up frame {warm_s * 1e3:.0f} ms")
+        self._warn_ignored(self.stream)
+
+    def _warn_ignored(self, stream: DepthStreamCorrector) -> None:
+        """One warning when the correction just adopted ignores patch-only parameters."""
+        ignored = ignored_parameters(stream, self.params)
+        if ignored:
+            self.get_logger().warning(
+                f"ignoring {_assignments(ignored)}: weights of the fcn kind have no G and no "
+                "geodesic filter (these parameters apply to the patch kind only)")
 
     # -- parameters ---------------------------------------------------------------------
     def _check_change(self, parameters: list[Parameter]) -> str | None:
@@ -370,6 +396,7 @@ class CorrectorNode(Node):
             self.stream, self.weights = staged.stream, staged.weights
             self.get_logger().info(
                 f"now correcting with {_describe(staged.stream, staged.weights)}")
+            self._warn_ignored(staged.stream)
         if "sync_tolerance_s" in names:
             with self._pair_lock:
                 self.pairer.tolerance_ns = round(self.params["sync_tolerance_s"] * 1e9)
@@ -463,7 +490,7 @@ class CorrectorNode(Node):
         self.pub_depth.publish(image_message(depth, encoding, header=header))
         edges = result.edges.astype(np.uint8) * np.uint8(255)
         self.pubs["edges"].publish(image_message(edges, "mono8", header=header))
-        self.pubs["confidence"].publish(image_message(result.confidence, "32FC1",
+        self.pubs["confidence"].publish(image_message(confidence_image(result), "32FC1",
                                                       header=header))
         self.pubs["output_camera_info"].publish(
             cropped_camera_info(info, result.intrinsics, header=header))
@@ -587,15 +614,30 @@ def effective_geodesic(weights: GeodesicParams, values: Mapping[str, Any]) -> Ge
                                sigma=weights.sigma if sigma == 0 else float(sigma))
 
 
-def _stream_for(model: CorrectionModel, values: Mapping[str, Any]) -> DepthStreamCorrector:
-    """The stream corrector ``values`` (the node's parameters) describe, over ``model``.
+def _stream_for(model: CorrectionModel | FCNCorrectionModel, values: Mapping[str, Any]
+                ) -> DepthStreamCorrector:
+    """The stream corrector ``values`` (the node's parameters) describe, over ``model``
+    (either kind; the fcn kind takes no edge or geodesic knob: :func:`ignored_parameters`).
 
     Raises:
         InputError: an invalid combination of the correction's knobs.
     """
+    geodesic = (None if isinstance(model, FCNCorrectionModel)
+                else effective_geodesic(model.geodesic, values))
     return DepthStreamCorrector(model, input_convention=values["input_convention"],
                                 device=values["device"], threads=values["threads"],
-                                geodesic=effective_geodesic(model.geodesic, values))
+                                geodesic=geodesic)
+
+
+def ignored_parameters(stream: DepthStreamCorrector, values: Mapping[str, Any]
+                       ) -> dict[str, Any]:
+    """The patch-only parameters set away from their defaults that ``stream`` ignores (its
+    model is of the fcn kind), name -> value; empty for the patch kind."""
+    if stream.geodesic is not None:
+        return {}
+    defaults = {p.name: p.default for p in PARAMETERS}
+    return {name: values[name] for name in PATCH_ONLY_PARAMETERS
+            if values[name] != defaults[name]}
 
 
 def _warm_up(stream: DepthStreamCorrector, weights: str) -> float:
@@ -624,10 +666,12 @@ def _assignments(changes: Mapping[str, Any]) -> str:
 def _describe(stream: DepthStreamCorrector, weights: str) -> str:
     """One line on the correction in use, for the log."""
     g = stream.geodesic
+    knobs = (f"fcn kind, max sigma {stream.model.max_sigma_mm:g} mm, confidence = sigma in "
+             "metres" if g is None else f"edges {g.edge_low:g}/{g.edge_high:g}, "
+             f"geodesic K {g.k} sigma {g.sigma:g}")
     return (f"central {stream.crop_width}x{stream.crop_height} window, "
             f"{stream.input_convention} convention, {weights} on {stream.device}, "
-            f"threads {stream.threads}, edges {g.edge_low:g}/{g.edge_high:g}, "
-            f"geodesic K {g.k} sigma {g.sigma:g}")
+            f"threads {stream.threads}, {knobs}")
 
 
 def _fields(msg: Image) -> tuple[Any, ...]:

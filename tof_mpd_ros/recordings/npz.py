@@ -6,7 +6,9 @@ One ``.npz`` holds N frames of one camera:
 * ``amplitude``: (N, H, W) float32;
 * ``reference_mm``: (N, H, W) float32 radial range in mm, NaN = missing (optional);
 * ``fx fy cx cy``: scalars, pixels of these H x W images; ``mod_freq_hz``: scalar, Hz;
-* ``stamp_ns``: (N,) int64 (optional); ``pose``: (N, 4, 4) float64 camera-to-base, m (optional).
+* ``stamp_ns``: (N,) int64 (optional); ``pose``: (N, 4, 4) float64 camera-to-base, m (optional);
+* ``sigma_mm``: (N, H, W) float32, written by ``tof-mpd correct`` with an fcn model (the
+  predicted σ of the corrected range, mm); loading ignores it.
 
 A single frame may drop the N axis. Files are loaded with ``allow_pickle=False``.
 
@@ -18,7 +20,7 @@ recording defines as invalid come back as NaN: range/reference <= 0 or +-inf, am
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -86,22 +88,37 @@ def load_npz(path: str | Path, *, start_ns: int = 0,
             for i in range(n)]
 
 
-def save_npz(path: str | Path, frames: Iterable[ToFFrame], *, overwrite: bool = False) -> int:
+def save_npz(path: str | Path, frames: Iterable[ToFFrame], *, overwrite: bool = False,
+             extra: Mapping[str, np.ndarray] | None = None) -> int:
     """Write frames as an interchange ``.npz`` (always with the N axis, stamps included).
 
     Frames without a reference or pose get NaN-filled ones when other frames have them.
+
+    Args:
+        path: the ``.npz`` to write.
+        frames: the frames (one camera).
+        overwrite: replace an existing file.
+        extra: more per-frame images written beside them (name -> (N, H, W), e.g.
+            ``sigma_mm``), with names the format does not read (:func:`load_npz` ignores
+            them).
 
     Returns:
         The number of frames written.
 
     Raises:
-        InputError: no frames, or frames with different intrinsics / modulation frequency.
+        InputError: no frames, frames with different intrinsics / modulation frequency, or an
+            ``extra`` array of another shape or with a name the format uses.
         RecordingError: the file exists (and not ``overwrite``) or cannot be written.
     """
     path = Path(path)
     if path.exists() and not overwrite:
         raise RecordingError(f"{path}: already exists; refusing to overwrite")
     arrays = frames_to_arrays(list(frames))
+    for name, value in (extra or {}).items():
+        if name in KNOWN_KEYS or np.shape(value) != arrays["range_mm"].shape:
+            raise InputError(f"extra array {name!r} {np.shape(value)}: expected a new name and "
+                             f"the frames' shape {arrays['range_mm'].shape}")
+        arrays[name] = np.asarray(value, np.float32)
     try:
         write_atomically(path, lambda stream: np.savez(stream, **arrays))
     except OSError as err:

@@ -8,6 +8,9 @@ for every (low, high) pair of a grid, the full pipeline's range on the held-out 
 as the paper scores it (fraction within 5 mm), first in the boundary region, then on the whole
 image. F alone (no geodesic step) is scored beside them, so the report says whether the step
 helps on this data at all.
+
+Only the patch kind has G and a geodesic step: a model of the fcn kind is refused
+(:class:`~tof_mpd_ros.errors.InputError`), it has no thresholds to choose.
 """
 
 from __future__ import annotations
@@ -19,7 +22,7 @@ import numpy as np
 
 from ..correction import edges as edge_module
 from ..correction import geodesic
-from ..correction.pipeline import CorrectionModel, correct
+from ..correction.pipeline import CorrectionModel, correct, require_patch_kind
 from ..evaluation.components import g_probabilities
 from ..evaluation.metrics import FrameAccumulator, boundary_region
 from ..frame import ToFFrame
@@ -96,7 +99,11 @@ def choose_edge_thresholds(model: CorrectionModel, frames: Sequence[ToFFrame],
 
     Returns:
         The choice with every candidate's scores, or None without usable frames.
+
+    Raises:
+        InputError: ``model`` is not of the patch kind (no G, no geodesic step).
     """
+    require_patch_kind(model, "choosing G's edge thresholds")
     usable = [f for f in frames if f.reference_mm is not None]
     if not usable:
         return None
@@ -110,6 +117,11 @@ def choose_edge_thresholds(model: CorrectionModel, frames: Sequence[ToFFrame],
 
 
 def with_thresholds(model: CorrectionModel, choice: ThresholdChoice) -> CorrectionModel:
-    """``model`` whose geodesic step uses the chosen thresholds."""
+    """``model`` whose geodesic step uses the chosen thresholds.
+
+    Raises:
+        InputError: ``model`` is not of the patch kind (it has no edge thresholds).
+    """
+    require_patch_kind(model, "setting G's edge thresholds")
     model.geodesic = replace(model.geodesic, edge_low=choice.low, edge_high=choice.high)
     return model

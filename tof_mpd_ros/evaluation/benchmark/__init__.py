@@ -1,5 +1,7 @@
 """The paper's experiments (§V) side by side: raw, calibrated, the six baselines, F alone and the
-full method on the same test frames.
+full method on the same test frames. A model of the fcn kind takes the full method's place under
+its own name, ``fcn`` (no F alone, no edge curves, no reference-edge ablation; its σ coverage in
+the component analysis).
 
 Protocol (what :func:`run_benchmark` does):
 
@@ -38,6 +40,7 @@ from ..profiles import ProfileLine
 from .config import (
     BASELINE_NAMES,
     F_ALONE,
+    FCN,
     METHODS,
     PAPER_METHODS,
     PROPOSED,
@@ -48,6 +51,8 @@ from .config import (
     BenchmarkConfig,
     GridSpec,
     default_grids,
+    methods_for,
+    own_method,
 )
 from .context import machine_info
 from .paper import PAPER_WITHIN_5MM, compare_with_paper, rank_methods
@@ -57,10 +62,11 @@ from .split import CalibratedFrame, TrainValSplit, calibrate_frames, session_gro
 from .tuning import TunedBaseline, tune_baseline
 
 __all__ = [
-    "BASELINE_NAMES", "F_ALONE", "METHODS", "PAPER_METHODS", "PAPER_WITHIN_5MM", "PROPOSED",
+    "BASELINE_NAMES", "FCN", "F_ALONE", "METHODS", "PAPER_METHODS", "PAPER_WITHIN_5MM",
+    "PROPOSED",
     "RANK_THRESHOLD_MM", "REFERENCE_EDGES", "SMOOTHING_BASELINES", "TABLE_THRESHOLDS_MM",
     "BenchmarkConfig", "BenchmarkResult", "CalibratedFrame", "GridSpec", "ProfileLine",
     "TrainValSplit", "TunedBaseline", "calibrate_frames", "compare_with_paper", "default_grids",
-    "machine_info", "rank_methods", "run_benchmark", "session_groups", "split_train_val",
-    "tune_baseline",
+    "machine_info", "methods_for", "own_method", "rank_methods", "run_benchmark",
+    "session_groups", "split_train_val", "tune_baseline",
 ]

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from ...correction.fcn import FCNCorrectionModel
 from ...correction.pipeline import CorrectionModel
 from ...errors import InputError
 from ..baselines import BASELINES
@@ -14,10 +15,27 @@ from ..profiles import DEFAULT_LENGTH_PX
 BASELINE_NAMES: tuple[str, ...] = ("JBF", "WMF", "RF-WF", "RFD", "TV", "PD")
 PROPOSED = "proposed"
 F_ALONE = "F"
+#: the method name of a model of the ``"fcn"`` kind (its full output)
+FCN = "fcn"
 #: the ablation: the full method with the reference's edges in place of G's
 REFERENCE_EDGES = "full, reference edges"
-# Every method in report order; the paper's Fig. 5 compares all of them except F alone.
-METHODS: tuple[str, ...] = ("raw", "calibrated", *BASELINE_NAMES, F_ALONE, PROPOSED)
+#: the methods a model of each kind adds to raw, calibrated and the baselines; the last is its
+#: full output, the one ranked against the baselines in the paper's place of the proposed method
+MODEL_METHODS: dict[str, tuple[str, ...]] = {"patch": (F_ALONE, PROPOSED), "fcn": (FCN,)}
+
+
+def methods_for(kind: str) -> tuple[str, ...]:
+    """Every method in report order for a model of ``kind`` (``"patch"`` or ``"fcn"``)."""
+    return ("raw", "calibrated", *BASELINE_NAMES, *MODEL_METHODS[kind])
+
+
+def own_method(kind: str) -> str:
+    """The method name of a ``kind`` model's full output: ``proposed`` or ``fcn``."""
+    return MODEL_METHODS[kind][-1]
+
+
+# Every method in report order (patch kind); the paper's Fig. 5 compares all but F alone.
+METHODS: tuple[str, ...] = methods_for("patch")
 PAPER_METHODS: tuple[str, ...] = tuple(m for m in METHODS if m != F_ALONE)
 TABLE_THRESHOLDS_MM: tuple[float, ...] = (2.0, 5.0, 10.0)
 RANK_THRESHOLD_MM = 5.0
@@ -38,16 +56,18 @@ class GridSpec:
     grid: dict[str, list[Any]] = field(default_factory=dict)
 
 
-def default_grids(model: CorrectionModel, *, quick: bool = False) -> dict[str, GridSpec]:
+def default_grids(model: CorrectionModel | FCNCorrectionModel, *, quick: bool = False
+                  ) -> dict[str, GridSpec]:
     """The grids of every baseline.
 
     ``quick=False``: each baseline's own ``param_grid`` plus ``fit_param_grid`` with its default
     constructor (the full search; RFD alone refits a 30-tree forest per ``max_depth``, minutes).
     ``quick=True``: a few values around the full grids' usual winners and smaller forests and
     dictionary, for the demo (about a minute of tuning on the small simulated dataset).
-    RFD always uses the model's patch encoding (the same features as F).
+    RFD uses the model's patch encoding (the same features as F); an fcn model has none, so
+    there RFD keeps its own default encoding.
     """
-    enc = {"encoding": model.encoding}
+    enc = {"encoding": model.encoding} if isinstance(model, CorrectionModel) else {}
     if not quick:
         return {name: GridSpec(init=dict(enc) if name == "RFD" else {},
                                grid={**BASELINES[name].param_grid,

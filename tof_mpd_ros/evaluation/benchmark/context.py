@@ -8,6 +8,7 @@ from typing import Any
 
 import torch
 
+from ...correction.fcn import FCNCorrectionModel
 from ...correction.pipeline import CorrectionModel
 from ...machine import cpu_model
 from .config import RANK_THRESHOLD_MM, BenchmarkConfig
@@ -23,9 +24,10 @@ def machine_info() -> dict[str, Any]:
             "python": platform.python_version(), "platform": platform.platform()}
 
 
-def run_info(model: CorrectionModel, config: BenchmarkConfig) -> dict[str, Any]:
-    """Provenance of a run: the machine, the settings and the model's crop."""
+def run_info(model: CorrectionModel | FCNCorrectionModel, config: BenchmarkConfig
+             ) -> dict[str, Any]:
+    """Provenance of a run: the machine, the settings, the model's kind and crop."""
     return {"machine": machine_info(), "quick": config.quick,
             "val_fraction": config.val_fraction, "max_val_frames": config.max_val_frames,
             "thresholds_mm": list(config.thresholds), "rank_threshold_mm": RANK_THRESHOLD_MM,
-            "model_shape": list(model.shape), "timing_note": TIMING_NOTE}
+            "model_kind": model.kind, "model_shape": list(model.shape), "timing_note": TIMING_NOTE}

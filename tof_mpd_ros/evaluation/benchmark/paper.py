@@ -63,23 +63,24 @@ class _Evidence:
             return None
         return {"patches": self.raw["f_training_patches"], "epochs": self.raw.get("f_epochs")}
 
-    def misses(self, names: Sequence[str]) -> dict[str, Any] | None:
+    def misses(self, names: Sequence[str], own: str = PROPOSED) -> dict[str, Any] | None:
         """What the misses (≥ 5 mm) of ``names`` are made of (:class:`~..diagnosis.MissTally`
-        rows), and ``lever``: what most of the proposed method's (else F's) misses are —
-        ``"beyond_clip"`` (out of F's reach), ``"noise"`` (noise-limited), ``"bias"`` (within
-        F's reach), or None when neither was measured."""
+        rows), and ``lever``: what most of the model's own method's (``own``: ``proposed``
+        or ``fcn``; else F's) misses are — ``"beyond_clip"`` (out of F's reach),
+        ``"noise"`` (noise-limited), ``"bias"`` (within reach), or None when neither was
+        measured."""
         tally = self.raw.get("misses")
         if not tally:
             return None
         per = {n: tally["methods"][n] for n in names if n in tally["methods"]}
         if not per:
             return None
-        own = per.get(PROPOSED) or per.get(F_ALONE)
+        row = per.get(own) or per.get(F_ALONE)
         lever = None
-        if own is not None:
-            noisy, beyond = own.get("noise_limited") or 0.0, own.get("beyond_clip") or 0.0
+        if row is not None:
+            noisy, beyond = row.get("noise_limited") or 0.0, row.get("beyond_clip") or 0.0
             lever = "beyond_clip" if beyond >= 0.5 else "noise" if noisy >= 0.5 else "bias"
-        return {"clip_mm": tally.get("clip_mm"), "methods": per, "lever": lever}
+        return {"clip_mm": tally.get("clip_mm"), "methods": per, "lever": lever, "own": own}
 
     def _regions(self) -> tuple[Mapping[str, Any], Mapping[str, Any]] | None:
         regions = self.raw.get("regions")
@@ -112,7 +113,8 @@ class _Evidence:
 
 @dataclass(frozen=True)
 class _Scores:
-    """Accuracy at 5 mm of the methods in the paper's Fig. 5, both rankings, and F alone's."""
+    """Accuracy at 5 mm of the methods in the paper's Fig. 5, both rankings, and F alone's;
+    ``proposed``: the method in the paper's method's place (``proposed``, or ``fcn``)."""
 
     whole: dict[str, float]
     boundary: dict[str, float]
@@ -120,6 +122,7 @@ class _Scores:
     ranking_boundary: list[str]
     baselines: list[str]
     f_alone: tuple[float, float] | None
+    proposed: str = PROPOSED
 
     def regions(self) -> tuple[tuple[str, list[str], dict[str, float]], ...]:
         """(region, ranking, scores) for ``"whole"`` (image) and ``"boundary"`` (region)."""
@@ -134,20 +137,22 @@ def _finding(kind: str, agrees: bool, **facts: Any) -> dict[str, Any]:
 
 
 def _best(s: _Scores, ev: _Evidence) -> list[dict[str, Any]]:
-    """Claim: the proposed method is best at 5 mm, in each region."""
+    """Claim: the proposed method (or the model in its place) is best at 5 mm, in each
+    region."""
     out = []
+    own = s.proposed
     for region, ranking, scores in s.regions():
         top = ranking[0]
-        f = _finding("best", top == PROPOSED, region=region, expected=PROPOSED, top=top)
+        f = _finding("best", top == own, region=region, expected=own, top=top)
         if not f["agrees"]:
-            f["margin"] = scores[top] - scores[PROPOSED]
+            f["margin"] = scores[top] - scores[own]
             if top == "RFD":
-                f.update(misses=ev.misses([PROPOSED, F_ALONE, "RFD"]), training=ev.training)
+                f.update(misses=ev.misses([own, F_ALONE, "RFD"], own), training=ev.training)
             elif top in SMOOTHING_BASELINES:
-                f.update(noise=ev.noise, misses=ev.misses([PROPOSED, top]))
+                f.update(noise=ev.noise, misses=ev.misses([own, top], own))
             elif top == "calibrated":
-                f.update(regions=ev.regions(["calibrated", F_ALONE, PROPOSED]),
-                         misses=ev.misses([PROPOSED, F_ALONE]), training=ev.training)
+                f.update(regions=ev.regions(["calibrated", F_ALONE, own]),
+                         misses=ev.misses([own, F_ALONE], own), training=ev.training)
         out.append(f)
     return out
 
@@ -160,17 +165,17 @@ def _second(s: _Scores, ev: _Evidence) -> list[dict[str, Any]]:
     out = []
     for region, ranking, scores in s.regions():
         f = _finding("second", ranking[1] == "RFD", region=region, expected="RFD",
-                     second=ranking[1])
+                     second=ranking[1], ours=s.proposed)
         if not f["agrees"]:
             position = ranking.index("RFD") + 1
-            ahead = [m for m in ranking[:position - 1] if m != PROPOSED]
+            ahead = [m for m in ranking[:position - 1] if m != s.proposed]
             smoothers = [m for m in ahead if m in SMOOTHING_BASELINES]
             f.update(position=position, score=scores["RFD"], ahead=ahead,
                      smoothers=bool(smoothers), below_calibrated="calibrated" in ahead,
                      val_rfd=val.get("RFD") if val_cal is not None else None, val_cal=val_cal,
                      pixels=ev.raw.get("rfd_training_pixels"))
             if smoothers:
-                f.update(noise=ev.noise, misses=ev.misses(["RFD", *smoothers]))
+                f.update(noise=ev.noise, misses=ev.misses(["RFD", *smoothers], s.proposed))
             if f["below_calibrated"]:
                 f["regions"] = ev.regions(["calibrated", "RFD"])
         out.append(f)
@@ -212,7 +217,7 @@ def _geodesic(s: _Scores, ev: _Evidence) -> list[dict[str, Any]]:
     """Claim: geodesic filtering with G adds to F (component analysis, Fig. 8)."""
     if s.f_alone is None:
         return []
-    full = (s.whole[PROPOSED], s.boundary[PROPOSED])
+    full = (s.whole[s.proposed], s.boundary[s.proposed])
     oracle = ev.raw.get("reference_edges")
     return [_finding("geodesic", full[0] >= s.f_alone[0] and full[1] >= s.f_alone[1],
                      f_alone=s.f_alone, full=full, oracle=oracle,
@@ -231,7 +236,7 @@ def _network(s: _Scores, ev: _Evidence) -> list[dict[str, Any]]:
     f = _finding("network", agrees, f_alone=s.f_alone, rfd=rfd, chosen=ev.raw.get("rfd_chosen"),
                  pixels=ev.raw.get("rfd_training_pixels"))
     if not agrees:
-        f.update(training=ev.training, misses=ev.misses([F_ALONE, "RFD"]))
+        f.update(training=ev.training, misses=ev.misses([F_ALONE, "RFD"], s.proposed))
     return [f]
 
 
@@ -245,14 +250,16 @@ def _worded(template: Any, finding: Mapping[str, Any]) -> dict[str, Any]:
             "agrees": finding["agrees"], "why": None if finding["agrees"] else word("why")}
 
 
-def compare_with_paper(acc5: Mapping[str, tuple[float, float]], evidence: Mapping[str, Any]
-                       ) -> dict[str, Any]:
+def compare_with_paper(acc5: Mapping[str, tuple[float, float]], evidence: Mapping[str, Any],
+                       *, proposed: str = PROPOSED) -> dict[str, Any]:
     """The ranking at 5 mm and every way it differs from the paper's, with the reason.
 
     Args:
         acc5: method -> (fraction within 5 mm whole image, boundary region), for the methods of
             the paper's Fig. 5 (raw, calibrated, the baselines present, ``proposed``); may also
             hold ``F`` (ranked separately, it is a component).
+        proposed: the method judged in the paper's method's place: ``proposed`` (the patch
+            kind's full method) or ``fcn`` (a model of the fcn kind, which has no ``F``).
         evidence: measurements explaining differences (any may be absent):
             ``noise_share`` (fraction of the calibrated error variance away from boundaries
             that is pixel-to-pixel noise), ``noise_rms_mm``, ``bias_rms_mm``,
@@ -270,19 +277,19 @@ def compare_with_paper(acc5: Mapping[str, tuple[float, float]], evidence: Mappin
         "findings": [{"aspect", "paper", "ours", "agrees", "why"}...], "targets": {...}}``.
     """
     paper = {k: v for k, v in acc5.items() if k != F_ALONE}
-    if PROPOSED not in paper or "calibrated" not in paper or "raw" not in paper:
-        raise InputError("compare_with_paper needs raw, calibrated and proposed")
+    if proposed not in paper or "calibrated" not in paper or "raw" not in paper:
+        raise InputError(f"compare_with_paper needs raw, calibrated and {proposed}")
     whole = {k: v[0] for k, v in paper.items()}
     bound = {k: v[1] for k, v in paper.items()}
     s = _Scores(whole, bound, rank_methods(whole, bound), rank_methods(bound, whole),
                 [m for m in BASELINE_NAMES if m in paper],
-                tuple(acc5[F_ALONE]) if F_ALONE in acc5 else None)
+                tuple(acc5[F_ALONE]) if F_ALONE in acc5 else None, proposed)
     ev = _Evidence(evidence)
     facts = [*_best(s, ev), *_second(s, ev), *_above_calibrated(s, ev), _calibration(s),
              *_geodesic(s, ev), *_network(s, ev)]
     template = macros(TEMPLATE)
-    targets = {f"proposed_beats_every_baseline_{region}": all(scores[PROPOSED] > scores[m]
-                                                              for m in s.baselines)
+    targets = {f"{proposed}_beats_every_baseline_{region}": all(scores[proposed] > scores[m]
+                                                                for m in s.baselines)
                for region, scores in (("whole", whole), ("boundary", bound))}
     return {"ranking_whole": s.ranking_whole, "ranking_boundary": s.ranking_boundary,
             "statement": words(template.statement(s)),

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..components import ComponentEvaluation
 from ..metrics import FrameEvaluation
-from .config import BASELINE_NAMES, METHODS, TABLE_THRESHOLDS_MM
+from .config import BASELINE_NAMES, TABLE_THRESHOLDS_MM, methods_for, own_method
 from .split import TrainValSplit
 from .tuning import TunedBaseline
 
@@ -33,6 +33,8 @@ class BenchmarkResult:
         n_frames: test frames evaluated; n_skipped: test frames without a reference.
         timings: stage -> seconds of the benchmark run itself.
         info: provenance (machine, config).
+        kind: the model's kind, ``"patch"`` (methods ``F`` and ``proposed``) or ``"fcn"``
+            (method ``fcn``).
     """
 
     methods: dict[str, FrameEvaluation]
@@ -47,6 +49,12 @@ class BenchmarkResult:
     n_skipped: int
     timings: dict[str, float]
     info: dict[str, Any]
+    kind: str = "patch"
+
+    @property
+    def proposed(self) -> str:
+        """The method name of the model's full output: ``proposed`` or ``fcn``."""
+        return own_method(self.kind)
 
     def table(self, thresholds: Sequence[float] = TABLE_THRESHOLDS_MM) -> dict[str, dict]:
         """Per method: fraction within each threshold (whole, boundary), MAE (whole,
@@ -73,7 +81,8 @@ class BenchmarkResult:
 
         return {
             "n_test_frames": self.n_frames, "n_test_frames_without_reference": self.n_skipped,
-            "methods_order": [m for m in METHODS if m in self.methods],
+            "model_kind": self.kind, "proposed_method": self.proposed,
+            "methods_order": [m for m in methods_for(self.kind) if m in self.methods],
             "table": {m: {k: finite(v) for k, v in row.items()}
                       for m, row in self.table().items()},
             "comparison": self.comparison,

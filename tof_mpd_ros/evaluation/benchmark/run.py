@@ -1,6 +1,10 @@
 """Running the benchmark: tune the baselines on the training frames, then run every method on
 the same test frames and pool the paper's metrics (the module doc of
-:mod:`tof_mpd_ros.evaluation.benchmark` gives the protocol)."""
+:mod:`tof_mpd_ros.evaluation.benchmark` gives the protocol).
+
+Either kind of model: the patch kind runs as F alone and the full method (``proposed``), the
+fcn kind as one method, ``fcn``, in the same tables (:func:`.config.methods_for`); the
+reference-edge ablation and F's truncation in the miss tally exist for the patch kind only."""
 
 from __future__ import annotations
 
@@ -12,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from ...correction.fcn import FCNCorrectionModel
 from ...correction.geodesic import geodesic_filter
 from ...correction.pipeline import CorrectionModel, check_frame_pair, correct
 from ...errors import InputError
@@ -24,13 +29,13 @@ from ..profiles import choose_boundary_line, sample_profile
 from .config import (
     BASELINE_NAMES,
     F_ALONE,
-    METHODS,
-    PROPOSED,
     RANK_THRESHOLD_MM,
     REFERENCE_EDGES,
     BenchmarkConfig,
     GridSpec,
     default_grids,
+    methods_for,
+    own_method,
 )
 from .context import run_info
 from .paper import compare_with_paper
@@ -41,14 +46,15 @@ from .tuning import TunedBaseline, tune_baseline
 log = logging.getLogger(__name__)
 
 
-def run_benchmark(model: CorrectionModel, train_frames: Iterable[ToFFrame],
+def run_benchmark(model: CorrectionModel | FCNCorrectionModel, train_frames: Iterable[ToFFrame],
                   test_frames: Iterable[ToFFrame], config: BenchmarkConfig | None = None, *,
                   train_sources: Sequence[int] | None = None,
                   on_stage: Callable[[str], None] | None = None) -> BenchmarkResult:
     """Run every method on the same test frames (see the package doc for the protocol).
 
     Args:
-        model: the correction model (calibration, F, G); frames must be its crop.
+        model: the correction model, either kind (calibration, F and G, or the fcn
+            network); frames must be its crop.
         train_frames: training frames with references (for the learned baselines and the grid
             search), in capture order.
         test_frames: test frames; those without a reference are skipped (counted).
@@ -93,12 +99,12 @@ def run_benchmark(model: CorrectionModel, train_frames: Iterable[ToFFrame],
     components = tally.components.result()
     acc5 = {m: (ev.whole.at(RANK_THRESHOLD_MM), ev.boundary.at(RANK_THRESHOLD_MM))
             for m, ev in evaluations.items()}
-    comparison = compare_with_paper(acc5, evidence)
+    comparison = compare_with_paper(acc5, evidence, proposed=own_method(model.kind))
     timings["metrics_s"] = time.perf_counter() - t0
     timings["total_s"] = time.perf_counter() - start
     return BenchmarkResult(evaluations, tally.median_seconds(), tuned, components, split,
                            comparison, diagnostics, tally.examples, len(tests), skipped, timings,
-                           run_info(model, cfg))
+                           run_info(model, cfg), model.kind)
 
 
 def _with_reference(frames: Iterable[ToFFrame]) -> tuple[list[ToFFrame], int]:
@@ -118,7 +124,7 @@ def _with_reference(frames: Iterable[ToFFrame]) -> tuple[list[ToFFrame], int]:
     return kept, skipped
 
 
-def _calibrated_split(model: CorrectionModel, train_frames: Iterable[ToFFrame],
+def _calibrated_split(model: CorrectionModel | FCNCorrectionModel, train_frames: Iterable[ToFFrame],
                       train_sources: Sequence[int] | None, cfg: BenchmarkConfig
                       ) -> tuple[TrainValSplit, list[CalibratedFrame], list[CalibratedFrame]]:
     """Calibrate the training frames with a reference and split them (indices of the split
@@ -163,21 +169,25 @@ def _bar(total: int, desc: str, enabled: bool):
 
 class _TestFrames:
     """Every method on each test frame, pooled: the stages through the one component loop
-    (:class:`~..components.ComponentTally`), the baselines and F alone beside them, and the
-    measurements the comparison with the paper quotes (regions, misses, noise, the
-    reference-edge ablation)."""
+    (:class:`~..components.ComponentTally`), the baselines and (patch kind) F alone beside
+    them, and the measurements the comparison with the paper quotes (regions, misses, noise,
+    the patch kind's reference-edge ablation)."""
 
-    def __init__(self, model: CorrectionModel, tuned: Mapping[str, TunedBaseline],
-                 cfg: BenchmarkConfig, n_frames: int) -> None:
+    def __init__(self, model: CorrectionModel | FCNCorrectionModel,
+                 tuned: Mapping[str, TunedBaseline], cfg: BenchmarkConfig, n_frames: int) -> None:
         self.model, self.tuned, self.cfg = model, tuned, cfg
-        self.methods = [m for m in METHODS if m not in BASELINE_NAMES or m in tuned]
+        self.patch = isinstance(model, CorrectionModel)
+        self.methods = [m for m in methods_for(model.kind)
+                        if m not in BASELINE_NAMES or m in tuned]
         # the benchmark's component analysis has no per-region or operating-point diagnostics
         self.components = ComponentTally(model, cfg.thresholds, diagnostics=False)
         self.accuracy = {m: FrameAccumulator(cfg.thresholds) for m in self.methods}
         self.seconds: dict[str, list[float]] = {m: [] for m in self.methods}
         self.ablation = FrameAccumulator(cfg.thresholds)
         self.regions = RegionTally(RANK_THRESHOLD_MM)
-        self.misses = MissTally(float(model.range_net.target_clip_mm), RANK_THRESHOLD_MM)
+        # F's target truncation; the fcn kind has none (no pixel is out of its reach by design)
+        clip = float(model.range_net.target_clip_mm) if self.patch else None
+        self.misses = MissTally(clip, RANK_THRESHOLD_MM)
         self.noise = NoiseTally()
         self.n_evaluated = self.n_boundary = 0
         n_ex = min(cfg.n_examples, n_frames)
@@ -194,12 +204,13 @@ class _TestFrames:
         cal = self.model.calibration.apply(r, a)
         t_cal = time.perf_counter() - tc
         stages = self.components.add(r, a, reference)
-        tc = time.perf_counter()
-        f_only = correct(self.model, r, a, use_boundary=False)
-        t_f = time.perf_counter() - tc
-        est = {"raw": r.astype(np.float32), "calibrated": cal, F_ALONE: f_only.range_mm,
-               PROPOSED: stages.full.range_mm}
-        times = {"raw": 0.0, "calibrated": t_cal, F_ALONE: t_f, PROPOSED: stages.seconds}
+        own = own_method(self.model.kind)
+        est = {"raw": r.astype(np.float32), "calibrated": cal, own: stages.full.range_mm}
+        times = {"raw": 0.0, "calibrated": t_cal, own: stages.seconds}
+        if self.patch:
+            tc = time.perf_counter()
+            est[F_ALONE] = correct(self.model, r, a, use_boundary=False).range_mm
+            times[F_ALONE] = time.perf_counter() - tc
         for name, tb in self.tuned.items():
             tc = time.perf_counter()
             est[name] = tb.method.apply(cal, a, **tb.apply_params)
@@ -217,10 +228,13 @@ class _TestFrames:
             self.accuracy[m].add(est[m], ref, mask)
             self.seconds[m].append(times[m])
         full = stages.full
-        oracle = _with_reference_edges(self.model, full.range_f_mm, stages.gt_edges,
-                                       full.range_mm)
-        self.ablation.add(oracle, ref, mask)
-        self.regions.add({**est, REFERENCE_EDGES: oracle}, ref, stages.edge_distance)
+        regions = dict(est)
+        if self.patch:
+            oracle = _with_reference_edges(self.model, full.range_f_mm, stages.gt_edges,
+                                           full.range_mm)
+            self.ablation.add(oracle, ref, mask)
+            regions[REFERENCE_EDGES] = oracle
+        self.regions.add(regions, ref, stages.edge_distance)
         self.misses.add(est, ref, est["calibrated"])
         self.noise.add(est["calibrated"], ref, mask)
         valid = np.isfinite(ref)
@@ -234,20 +248,21 @@ class _TestFrames:
         """Method -> median wall time per frame, s."""
         return {m: float(np.median(v)) for m, v in self.seconds.items()}
 
-    def result(self, model: CorrectionModel, tuned: Mapping[str, TunedBaseline],
-               val_calibrated: float) -> tuple[dict, dict[str, Any], dict[str, Any]]:
+    def result(self, model: CorrectionModel | FCNCorrectionModel,
+               tuned: Mapping[str, TunedBaseline], val_calibrated: float
+               ) -> tuple[dict, dict[str, Any], dict[str, Any]]:
         """Per method accuracy, the diagnostics written to the report and the evidence for
         :func:`~.paper.compare_with_paper`."""
         evaluations = {m: self.accuracy[m].result() for m in self.methods}
         noise = self.noise.to_dict()
         regions, misses = self.regions.result(), self.misses.result()
-        oracle = self.ablation.result()
+        oracle = self.ablation.result() if self.patch else None
         diagnostics = {"calibrated_error_away_from_boundaries": noise,
                        "boundary_share": (self.n_boundary / self.n_evaluated
                                           if self.n_evaluated else None),
                        "val_calibrated_within_5mm": val_calibrated,
                        "regions_within_5mm": regions, "misses": misses,
-                       "ablation_reference_edges": oracle.to_dict()}
+                       "ablation_reference_edges": None if oracle is None else oracle.to_dict()}
         meta = model.metadata if isinstance(model.metadata, dict) else {}
         evidence = {**noise, "boundary_share": diagnostics["boundary_share"],
                     "val_scores": {m: t.val_score for m, t in tuned.items()},
@@ -258,8 +273,8 @@ class _TestFrames:
                     "f_training_patches": meta.get("final", {}).get("patches"),
                     "f_epochs": meta.get("train_config", {}).get("epochs"),
                     "regions": regions, "misses": misses,
-                    "reference_edges": (oracle.whole.at(RANK_THRESHOLD_MM),
-                                        oracle.boundary.at(RANK_THRESHOLD_MM))}
+                    "reference_edges": None if oracle is None else (
+                        oracle.whole.at(RANK_THRESHOLD_MM), oracle.boundary.at(RANK_THRESHOLD_MM))}
         return evaluations, diagnostics, evidence
 
 

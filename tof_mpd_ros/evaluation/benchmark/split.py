@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ...correction.fcn import FCNCorrectionModel
 from ...correction.pipeline import CorrectionModel, check_frame_pair
 from ...errors import InputError
 from ...frame import ToFFrame
@@ -28,8 +29,9 @@ class CalibratedFrame:
     reference_mm: np.ndarray | None
 
 
-def calibrate_frames(model: CorrectionModel, frames: Iterable[ToFFrame]) -> list[CalibratedFrame]:
-    """Apply the model's intrinsic calibration to every frame.
+def calibrate_frames(model: CorrectionModel | FCNCorrectionModel, frames: Iterable[ToFFrame]
+                     ) -> list[CalibratedFrame]:
+    """Apply the model's intrinsic calibration (either kind) to every frame.
 
     Raises:
         InputError: a frame is not the model's crop.

@@ -1,0 +1,96 @@
+"""The stream corrector (what the corrector node runs) with a model of the fcn kind: the depth is
+``correct``'s, the confidence image is the predicted σ in metres (in the output's convention),
+the edge map is empty, and the patch kind's geodesic knobs are refused by name.
+
+Plain numpy (no ROS); ``test/nodes/test_corrector_outputs.py`` checks the published messages.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tof_mpd_ros.calibration import IntrinsicCalibration
+from tof_mpd_ros.camera import Intrinsics
+from tof_mpd_ros.correction.depth_stream import DepthStreamCorrector, confidence_image
+from tof_mpd_ros.correction.fcn import FCNCorrectionModel
+from tof_mpd_ros.correction.pipeline import CorrectionModel, GeodesicParams, correct
+from tof_mpd_ros.errors import InputError
+
+H, W = 24, 32            # the model's window
+FH, FW = 30, 40          # the frames': the window is rows 3..27, columns 4..36
+K = Intrinsics(fx=40.0, fy=52.0, cx=19.25, cy=14.5, width=FW, height=FH)
+CROP = (slice(3, 27), slice(4, 36))
+
+
+def _frame() -> tuple[np.ndarray, np.ndarray]:
+    """(FH, FW) float32 depth in mm (a tilted plane with a 60 mm step) and amplitude, one NaN
+    depth and one zero amplitude inside the window."""
+    v, u = np.mgrid[0:FH, 0:FW]
+    depth = (420.0 + 2.0 * u + 1.0 * v - 60.0 * (u >= 20)).astype(np.float32)
+    amplitude = (300.0 + 2.0 * v).astype(np.float32)
+    depth[8, 10] = np.nan
+    amplitude[12, 25] = 0.0
+    return depth, amplitude
+
+
+@pytest.fixture(scope="module")
+def model() -> FCNCorrectionModel:
+    """An untrained fcn model whose ``max_sigma_mm`` is the median σ it predicts on the
+    window of :func:`_frame` (so about half the pixels are dropped for their σ)."""
+    m = FCNCorrectionModel.untrained(IntrinsicCalibration.identity(H, W), seed=5)
+    depth, amplitude = _frame()
+    m.max_sigma_mm = float(np.nanmedian(correct(m, depth[CROP], amplitude[CROP]).sigma_mm))
+    return m
+
+
+def test_radial_confidence_is_sigma_in_metres_of_correct(model: FCNCorrectionModel) -> None:
+    depth, amplitude = _frame()
+    out = DepthStreamCorrector(model, input_convention="radial", threads=1).correct(
+        depth, amplitude, K)
+    expected = correct(model, depth[CROP], amplitude[CROP])
+    np.testing.assert_allclose(out.depth_mm, expected.range_mm, rtol=1e-6, equal_nan=True)
+    np.testing.assert_allclose(out.sigma_mm, expected.sigma_mm, rtol=1e-6, equal_nan=True)
+    conf = confidence_image(out)
+    assert conf.dtype == np.float32 and conf.shape == (H, W)
+    np.testing.assert_allclose(conf, expected.sigma_mm / 1000.0, rtol=1e-6, atol=0,
+                               equal_nan=True)
+    # NaN exactly on the invalid inputs; millimetres of σ, i.e. a few thousandths of a metre
+    invalid = ~expected.valid
+    assert invalid.sum() == 2 and np.isnan(conf[invalid]).all()
+    assert np.isfinite(conf[~invalid]).all()
+    assert 1e-4 < np.nanmin(conf) and np.nanmax(conf) < 0.05
+    assert not out.edges.any()
+    # σ above max_sigma_mm: the depth is dropped, the confidence image still says why
+    dropped = expected.valid & (expected.sigma_mm > model.max_sigma_mm)
+    assert dropped.any() and (~dropped & expected.valid).any()
+    assert np.isnan(out.depth_mm[dropped]).all() and np.isfinite(conf[dropped]).all()
+
+
+def test_z_confidence_is_the_sigma_of_the_z_depth(model: FCNCorrectionModel) -> None:
+    """z = r · (z / r) per pixel: the z-depth's σ is the radial σ times the same factor."""
+    depth, amplitude = _frame()
+    crop_k = K.crop(W, H)
+    out = DepthStreamCorrector(model, input_convention="z", threads=1).correct(
+        depth, amplitude, K)
+    expected = correct(model, crop_k.z_to_radial(depth[CROP]), amplitude[CROP])
+    factor = crop_k.z_per_radial()
+    assert factor.min() < 0.99  # off-axis pixels: the factor is not 1
+    np.testing.assert_allclose(confidence_image(out), expected.sigma_mm * factor / 1000.0,
+                               rtol=1e-5, equal_nan=True)
+    np.testing.assert_allclose(out.depth_mm, expected.range_mm * factor, rtol=1e-5,
+                               equal_nan=True)
+
+
+def test_patch_kind_confidence_is_unchanged_and_geodesic_knobs_refuse_fcn(
+        model: FCNCorrectionModel) -> None:
+    depth, amplitude = _frame()
+    patch = CorrectionModel.untrained(IntrinsicCalibration.identity(H, W), seed=3)
+    out = DepthStreamCorrector(patch, threads=1).correct(depth, amplitude, K)
+    assert out.sigma_mm is None and confidence_image(out) is out.confidence
+    assert 0.0 <= out.confidence.min() and out.confidence.max() <= 1.0
+    with pytest.raises(InputError, match="patch kind only; this model is of kind 'fcn'"):
+        DepthStreamCorrector(model, geodesic=GeodesicParams())
+    stream = DepthStreamCorrector(model, threads=1)
+    assert stream.geodesic is None and stream.kind == "fcn"
+    assert stream.warm_up() >= 0.0
