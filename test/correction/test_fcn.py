@@ -3,7 +3,6 @@ the Gaussian likelihood, and its weights file."""
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 
@@ -11,6 +10,7 @@ import numpy as np
 import pytest
 import torch
 from scipy import stats
+from weights_files import rewrite_weights
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.fcn import (
@@ -23,7 +23,7 @@ from tof_mpd_ros.correction.fcn import (
     run_fcn,
 )
 from tof_mpd_ros.correction.pipeline import correct
-from tof_mpd_ros.correction.weights import array_digest, load_weights, save_weights
+from tof_mpd_ros.correction.weights import load_weights, save_weights
 from tof_mpd_ros.errors import InputError, WeightsError
 
 H, W = 50, 70   # not multiples of 16: the padding path is exercised
@@ -161,18 +161,6 @@ def test_weights_round_trip_of_the_fcn_kind(tmp_path: Path) -> None:
         np.testing.assert_array_equal(got, want)
 
 
-def _rewrite(src: Path, dst: Path, edit) -> Path:
-    with np.load(src, allow_pickle=False) as npz:
-        arrays = {k: npz[k] for k in npz.files}
-    meta = json.loads(str(arrays.pop("metadata")))
-    edit(arrays, meta)
-    meta["array_digest"] = array_digest(arrays)
-    arrays["metadata"] = np.array(json.dumps(meta))
-    with open(dst, "wb") as fh:
-        np.savez(fh, **arrays)
-    return dst
-
-
 def test_fcn_weights_that_do_not_fit_are_refused(tmp_path: Path) -> None:
     model = FCNCorrectionModel.untrained(_calibration(), FCNArchitecture(widths=(4, 8)), seed=6)
     src = save_weights(tmp_path / "fcn.npz", model)
@@ -188,6 +176,6 @@ def test_fcn_weights_that_do_not_fit_are_refused(tmp_path: Path) -> None:
 
     for edit, words in ((widen, "declared architecture"), (unknown_kind, "transformer"),
                         (patch_arrays_in_fcn, "unexpected entries")):
-        bad = _rewrite(src, tmp_path / f"{edit.__name__}.npz", edit)
+        bad = rewrite_weights(src, tmp_path / f"{edit.__name__}.npz", edit)
         with pytest.raises(WeightsError, match=words):
             load_weights(bad)

@@ -2,17 +2,17 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from weights_files import rewrite_weights
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.encoding import EncodingConfig, encode_frame
 from tof_mpd_ros.correction.pipeline import CorrectionModel
-from tof_mpd_ros.correction.weights import array_digest, load_weights, save_weights
+from tof_mpd_ros.correction.weights import load_weights, save_weights
 from tof_mpd_ros.errors import WeightsError
 
 H, W = 14, 18
@@ -25,19 +25,6 @@ def _model(seed: int = 0) -> CorrectionModel:
     model = CorrectionModel.untrained(calib, EncodingConfig(amplitude_max=3.0), seed=seed)
     model.metadata["note"] = "unit test"
     return model
-
-
-def _rewrite(src: Path, dst: Path, edit) -> Path:
-    """Copy an npz applying ``edit(arrays, meta)``, re-sealing the digest like a valid writer."""
-    with np.load(src, allow_pickle=False) as npz:
-        arrays = {k: npz[k] for k in npz.files}
-    meta = json.loads(str(arrays.pop("metadata")))
-    edit(arrays, meta)
-    meta["array_digest"] = array_digest(arrays)
-    arrays["metadata"] = np.array(json.dumps(meta))
-    with open(dst, "wb") as fh:
-        np.savez(fh, **arrays)
-    return dst
 
 
 @pytest.fixture
@@ -125,13 +112,13 @@ def test_wrong_architecture(saved, tmp_path: Path) -> None:
 
     with pytest.raises(WeightsError, match="range_net parameters do not match its declared "
                                            "architecture"):
-        load_weights(_rewrite(path, tmp_path / "arch.npz", shrink_first_layer))
+        load_weights(rewrite_weights(path, tmp_path / "arch.npz", shrink_first_layer))
 
     def other_patch_size(arrays, meta):
         meta["encoding"]["patch_size"] = 9
 
     with pytest.raises(WeightsError, match="networks do not fit the encoding"):
-        load_weights(_rewrite(path, tmp_path / "enc.npz", other_patch_size))
+        load_weights(rewrite_weights(path, tmp_path / "enc.npz", other_patch_size))
 
 
 def test_other_crop_format_and_version(saved, tmp_path: Path) -> None:
@@ -143,19 +130,19 @@ def test_other_crop_format_and_version(saved, tmp_path: Path) -> None:
         meta["crop"] = {"width": 180, "height": 140}
 
     with pytest.raises(WeightsError, match="disagrees with the calibration"):
-        load_weights(_rewrite(path, tmp_path / "crop.npz", lie_about_crop))
+        load_weights(rewrite_weights(path, tmp_path / "crop.npz", lie_about_crop))
 
     def future(arrays, meta):
         meta["format_version"] = 99
 
     with pytest.raises(WeightsError, match="format version 99 is not supported"):
-        load_weights(_rewrite(path, tmp_path / "v99.npz", future))
+        load_weights(rewrite_weights(path, tmp_path / "v99.npz", future))
 
     def other_format(arrays, meta):
         meta["format"] = "something.else"
 
     with pytest.raises(WeightsError, match=r"found 'something\.else'"):
-        load_weights(_rewrite(path, tmp_path / "fmt.npz", other_format))
+        load_weights(rewrite_weights(path, tmp_path / "fmt.npz", other_format))
 
 
 def test_pickled_payload_is_refused(tmp_path: Path) -> None:

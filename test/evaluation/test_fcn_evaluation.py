@@ -10,9 +10,10 @@ import math
 import numpy as np
 import pytest
 import torch
+from benchmark_frames import H, W
+from benchmark_frames import frames as _frames
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
-from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.correction.fcn import FCNCorrectionModel
 from tof_mpd_ros.correction.pipeline import correct
 from tof_mpd_ros.errors import InputError
@@ -28,32 +29,6 @@ from tof_mpd_ros.evaluation.metrics import SigmaCoverage
 from tof_mpd_ros.evaluation.report import write_benchmark_report, write_component_report
 from tof_mpd_ros.frame import ToFFrame
 from tof_mpd_ros.training.edge_thresholds import choose_edge_thresholds, with_thresholds
-
-H, W = 32, 48
-HOUR_NS = 3_600 * 10**9
-
-
-def _frame(rng: np.random.Generator, stamp_ns: int) -> ToFFrame:
-    """A tilted table at ~400 mm with a nearer box, +6 mm offset, a longer range beside the box
-    and noise; the reference has a missing patch."""
-    yy, xx = np.mgrid[:H, :W].astype(np.float64)
-    truth = 400.0 + 0.3 * (xx - W / 2) + 0.1 * yy + rng.uniform(-5, 5)
-    y0, x0 = rng.integers(6, 12), rng.integers(8, 20)
-    truth[y0:y0 + 12, x0:x0 + 16] -= rng.uniform(50, 80)
-    amplitude = np.where(truth < 370, 0.9, 0.5) * (400.0 / truth) ** 2
-    measured = truth + 6.0 + rng.normal(0, 2.0, truth.shape)
-    measured[y0:y0 + 12, x0 + 16:x0 + 19] += 12.0
-    reference = truth.copy()
-    reference[:3, :5] = np.nan
-    return ToFFrame(measured.astype(np.float32), amplitude.astype(np.float32),
-                    Intrinsics.from_fov(W, H, 74.0), reference_mm=reference.astype(np.float32),
-                    stamp_ns=stamp_ns)
-
-
-def _frames(seed: int, n_sessions: int, per_session: int) -> list[ToFFrame]:
-    rng = np.random.default_rng(seed)
-    return [_frame(rng, s * HOUR_NS + k * 10**9) for s in range(n_sessions)
-            for k in range(per_session)]
 
 
 @pytest.fixture(scope="module")

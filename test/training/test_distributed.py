@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import json
 import os
-import socket
 import subprocess
 import sys
 from dataclasses import replace
@@ -13,8 +12,8 @@ from pathlib import Path
 
 import pytest
 import torch
-import torch.multiprocessing as mp
 from synthetic_training_frames import synthetic_frames
+from two_ranks import free_port, run_two_ranks, set_rank_environment
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.calibration.intrinsic import save_calibration
@@ -30,16 +29,9 @@ CONFIG = TrainConfig(epochs=4, batch_size=200, val_fraction=0.25, val_samples_pe
                      tune_edge_thresholds=False)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _rank_main(rank: int, world: int, port: int, out: str) -> None:
     """One rank: what torchrun would set up, then the library's own train()."""
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank),
-                      WORLD_SIZE=str(world), LOCAL_RANK=str(rank))
+    set_rank_environment(rank, world, port)
     torch.set_num_threads(1)
     frames = synthetic_frames(8, seed=0)
     model, history = train(frames, IntrinsicCalibration.identity(H, W), CONFIG, seed=3,
@@ -51,10 +43,7 @@ def _rank_main(rank: int, world: int, port: int, out: str) -> None:
 
 
 def test_two_processes_train_in_step(tmp_path: Path) -> None:
-    mp.spawn(_rank_main, args=(2, _free_port(), str(tmp_path)), nprocs=2, join=True)
-    ranks = [torch.load(tmp_path / f"rank{r}.pt", weights_only=True) for r in range(2)]
-    for key, value in ranks[0]["state"].items():
-        assert torch.equal(value, ranks[1]["state"][key]), key
+    ranks = run_two_ranks(_rank_main, tmp_path)
     history = ranks[0]["history"]
     # every rank reports the losses over all ranks, and validates alike
     for a, b in zip(history, ranks[1]["history"], strict=True):
@@ -94,7 +83,7 @@ def test_torchrun_launch_of_the_cli(tmp_path: Path) -> None:
     env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join(
         [str(Path(__file__).resolve().parents[2]), os.environ.get("PYTHONPATH", "")])}
     cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2",
-           "--master_addr", "127.0.0.1", "--master_port", str(_free_port()),
+           "--master_addr", "127.0.0.1", "--master_port", str(free_port()),
            "-m", "tof_mpd_ros.cli.main", "train", str(tmp_path / "frames.npz"),
            "-o", str(tmp_path / "w.npz"), "--calibration", str(tmp_path / "cal.npz"),
            "--epochs", "2", "--batch-size", "100", "--max-samples-per-frame", "300",

@@ -5,16 +5,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import socket
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-import torch.multiprocessing as mp
 from synthetic_fcn_frames import fcn_frames
+from two_ranks import run_two_ranks, set_rank_environment
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.calibration.intrinsic import save_calibration
@@ -195,20 +193,13 @@ DIST = FCNTrainConfig(epochs=6, crop_px=32, batch_size=8, crops_per_frame=8, lr=
                       num_threads=1)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def _dist_frames() -> list:
     return fcn_frames(8, seed=0, noise_mm=2.0, box_mm=0.0)
 
 
 def _rank_main(rank: int, world: int, port: int, out: str) -> None:
     """One rank: what torchrun would set up, then the library's own train_fcn()."""
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank),
-                      WORLD_SIZE=str(world), LOCAL_RANK=str(rank))
+    set_rank_environment(rank, world, port)
     model, history = train_fcn(_dist_frames(), IntrinsicCalibration.identity(H, W), DIST,
                                seed=3, checkpoint_dir=Path(out) / "ckpt",
                                weights_path=Path(out) / "w.npz", progress=False)
@@ -217,10 +208,7 @@ def _rank_main(rank: int, world: int, port: int, out: str) -> None:
 
 
 def test_two_processes_train_in_step(tmp_path: Path) -> None:
-    mp.spawn(_rank_main, args=(2, _free_port(), str(tmp_path)), nprocs=2, join=True)
-    ranks = [torch.load(tmp_path / f"rank{r}.pt", weights_only=True) for r in range(2)]
-    for key, value in ranks[0]["state"].items():
-        assert torch.equal(value, ranks[1]["state"][key]), key
+    ranks = run_two_ranks(_rank_main, tmp_path)
     history = ranks[0]["history"]
     for a, b in zip(history, ranks[1]["history"], strict=True):
         for key in ("loss_nll", "crops", "pixels", "val_rmse_mm", "val_nll"):
