@@ -36,7 +36,7 @@ import torch
 from torch import nn
 from torch.nn import functional as tnf
 
-from ..calibration.intrinsic import IntrinsicCalibration
+from ..calibration.intrinsic import IntrinsicCalibration, valid_measurement
 from ..errors import InputError
 
 #: input channels of :func:`fcn_inputs`
@@ -145,13 +145,6 @@ class ResidualFCN(nn.Module):
         return a.correction_scale_mm * out[:, 0], sigma
 
 
-def valid_pixels(calibrated_mm: np.ndarray, amplitude: np.ndarray) -> np.ndarray:
-    """bool, same shape: finite, positive calibrated range and amplitude."""
-    with np.errstate(invalid="ignore"):
-        return (np.isfinite(calibrated_mm) & (calibrated_mm > 0) & np.isfinite(amplitude)
-                & (amplitude > 0))
-
-
 def _median_per_frame(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """(B, 1, 1) median of each frame's valid values (0 for a frame with none)."""
     out = np.zeros((values.shape[0], 1, 1), np.float32)
@@ -176,7 +169,7 @@ def fcn_inputs(calibrated_mm: np.ndarray, amplitude: np.ndarray, multiple: int
     """
     r = np.asarray(calibrated_mm, np.float32)
     a = np.asarray(amplitude, np.float32)
-    valid = valid_pixels(r, a)
+    valid = valid_measurement(r, a)
     with np.errstate(invalid="ignore", divide="ignore"):
         log_a = np.where(valid, np.log(np.where(valid, a, 1.0)), 0.0).astype(np.float32)
         r0 = np.where(valid, r, 0.0).astype(np.float32)

@@ -48,12 +48,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..calibration.intrinsic import IntrinsicCalibration
+from ..calibration.intrinsic import IntrinsicCalibration, valid_measurement
 from ..errors import InputError
 from ..thread_pools import shared_pool
 from ..validation import check_array
 from .encoding import EncodingConfig, encode_rows, frame_planes, plane_constants
-from .fcn import FCNCorrectionModel, run_fcn, valid_pixels
+from .fcn import FCNCorrectionModel, run_fcn
 from .networks import BoundaryNets, FrameBins, HeadOutputs, PatchNets, RangeRecoveryNet
 
 # Pixels per band on the CPU: the band's encodings (1440 x 240 float32, 1.4 MB) and the
@@ -282,7 +282,7 @@ def _correct_fcn(model: FCNCorrectionModel, r: np.ndarray, a: np.ndarray,
         final = np.where(sure, range_f, nan).astype(np.float32)
         confidence = np.where(valid, np.clip(1 - sigma / model.max_sigma_mm, 0, 1), 0)
     else:
-        valid = valid_pixels(calibrated, a3)
+        valid = valid_measurement(calibrated, a3)
         range_f = final = np.where(valid, calibrated, nan).astype(np.float32)
         sigma = np.full(calibrated.shape, nan, np.float32)
         confidence = valid
