@@ -78,6 +78,15 @@ class Intrinsics:
         return replace(self, cx=self.cx - cols.start, cy=self.cy - rows.start,
                        width=width, height=height)
 
+    def expanded(self, margin_px: int) -> Intrinsics:
+        """Intrinsics of the same camera with ``margin_px`` more pixels on every side (a virtual
+        border: it may reach past the sensor, for rays that a renderer needs beyond it)."""
+        m = int(margin_px)
+        if m < 0:
+            raise InputError(f"margin must be >= 0 px, got {margin_px}")
+        return replace(self, cx=self.cx + m, cy=self.cy + m, width=self.width + 2 * m,
+                       height=self.height + 2 * m)
+
     def scaled(self, factor: int) -> Intrinsics:
         """Intrinsics of the same view sampled ``factor`` times more finely per axis."""
         s = float(factor)

@@ -37,9 +37,33 @@ def test_capture_is_deterministic_for_a_seed() -> None:
     np.testing.assert_array_equal(a.reference_mm, b.reference_mm)
 
 
-def test_crop_with_margin_must_fit_the_sensor() -> None:
+def test_crop_must_fit_the_sensor_but_its_margin_may_reach_past_it() -> None:
+    sensor = Intrinsics.from_fov(100, 80, 74.0)
     with pytest.raises(SimulationError, match="does not fit"):
-        CameraModel(sensor=Intrinsics.from_fov(100, 80, 74.0), crop=(96, 70), margin_px=4)
+        CameraModel(sensor=sensor, crop=(102, 70), margin_px=4)
+    with pytest.raises(SimulationError, match="margin"):
+        CameraModel(sensor=sensor, crop=(96, 70), margin_px=-1)
+    # a window inside the sensor is the sensor's own central window
+    assert CameraModel(sensor=sensor, crop=(60, 40), margin_px=4).window == sensor.crop(68, 48)
+    # the whole sensor: a virtual border of 4 px on every side, same focal length and centre
+    window = CameraModel(sensor=sensor, crop=(100, 80), margin_px=4).window
+    assert (window.width, window.height) == (108, 88)
+    assert (window.fx, window.cx - 4, window.cy - 4) == (sensor.fx, sensor.cx, sensor.cy)
+
+
+def test_a_full_sensor_capture_covers_every_pixel() -> None:
+    camera = small_camera()
+    full = CameraModel(sensor=camera.sensor, crop=(camera.sensor.width, camera.sensor.height),
+                       margin_px=4, supersample=1)
+    frame = SimCell(camera=full).capture(make_box_scene(), looking_down(400.0),
+                                         np.random.default_rng(0))
+    assert frame.range_mm.shape == (90, 120) and frame.intrinsics == camera.sensor
+    border = np.ones((90, 120), bool)
+    border[4:-4, 4:-4] = False
+    # the sensor's outermost pixels are measured and referenced like the rest
+    assert np.isfinite(frame.range_mm[border]).mean() > 0.95
+    error = np.nanmedian(np.abs(frame.range_mm - frame.reference_mm)[border])
+    assert 0.5 < error < 30.0
 
 
 def test_per_pixel_calibration_removes_most_systematic_error_on_a_plane() -> None:

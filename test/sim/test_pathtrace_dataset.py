@@ -190,7 +190,7 @@ def test_cell_checks_its_renderer_settings() -> None:
     assert SimCell().materials == "builtin"
     assert SimCell(renderer="pathtrace").materials == "pathtrace"
     assert renderer_summary(SimCell()) == {"name": "builtin", "materials": "builtin",
-                                           "calibration": "builtin"}
+                                           "calibration": "builtin", "crop": [180, 140]}
 
 
 def test_pathtrace_seeds_are_a_function_of_scene_and_view() -> None:
@@ -371,3 +371,14 @@ def test_traced_capture_is_a_function_of_its_seed() -> None:
         _traced(scene, seed=8, spp=16)
     np.testing.assert_array_equal(a.range_mm, b.range_mm)
     assert not np.array_equal(a.range_mm, c.range_mm)
+
+
+def test_dataset_crop_option_is_checked_before_rendering(tmp_path, capsys) -> None:
+    out = tmp_path / "ds"
+    args = ["sim", "dataset", "-o", str(out), "--train-scenes", "1", "--test-scenes", "0",
+            "--views", "1", "--calibration", "1"]
+    assert main([*args, "--crop", "400x300"]) == 2 and not out.exists()
+    assert "--crop: crop 400x300 does not fit the 320x240 sensor" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main([*args, "--crop", "320by240"])
+    assert "expected WIDTHxHEIGHT" in capsys.readouterr().err

@@ -78,6 +78,9 @@ def _register_dataset(commands: argparse._SubParsersAction) -> None:
     dataset.add_argument("--spp", type=int, default=64,
                          help="path tracer samples per pixel (16, 32, 48, 64 or a multiple of "
                               "64; default 64)")
+    dataset.add_argument("--crop", metavar="WxH", type=_crop_arg, default=None,
+                         help="recorded central window of the 320x240 sensor: the paper's "
+                              "180x140 (default) or e.g. 320x240 for the whole sensor")
     dataset.add_argument("--shard", metavar="I/N", default=None,
                          help="render only the I-th of N disjoint slices (0-based: scenes and "
                               "calibration chunks dealt round-robin), e.g. one SLURM array "
@@ -99,6 +102,17 @@ def _register_merge(commands: argparse._SubParsersAction) -> None:
     merge.set_defaults(func=run_merge)
 
 
+def _crop_arg(text: str) -> tuple[int, int]:
+    """``320x240`` -> (320, 240)."""
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, got {text!r}") from None
+    if w < 1 or h < 1:
+        raise argparse.ArgumentTypeError(f"width and height must be >= 1, got {text!r}")
+    return w, h
+
+
 def _spec(args: argparse.Namespace):
     from ..sim.dataset import DatasetSpec
 
@@ -114,7 +128,7 @@ def _spec(args: argparse.Namespace):
 
 def _cell(args: argparse.Namespace):
     """The simulated cell with the chosen renderer (the path tracer loaded and checked)."""
-    from ..sim.cell import SimCell
+    from ..sim.cell import CameraModel, SimCell
 
     if args.renderer == "pathtrace":
         from ..sim.pathtrace import render as pathtrace
@@ -125,7 +139,11 @@ def _cell(args: argparse.Namespace):
             reason = " ".join(str(err).split())
             raise SimulationError(PATHTRACE_MISSING.format(reason=reason)) from err
     try:
-        return SimCell(renderer=args.renderer, pathtrace_spp=args.spp)
+        camera = CameraModel() if args.crop is None else CameraModel(crop=args.crop)
+    except SimulationError as err:
+        raise InputError(f"--crop: {err}") from err
+    try:
+        return SimCell(camera=camera, renderer=args.renderer, pathtrace_spp=args.spp)
     except SimulationError as err:
         raise InputError(f"--spp: {err}") from err
 

@@ -64,18 +64,20 @@ class CameraModel:
 
     def __post_init__(self) -> None:
         w, h = self.crop
-        if w + 2 * self.margin_px > self.sensor.width or h + 2 * self.margin_px > \
-                self.sensor.height:
-            raise SimulationError(f"crop {w}x{h} with a {self.margin_px} px margin does not fit "
-                                  f"the {self.sensor.width}x{self.sensor.height} sensor")
+        if not (0 < w <= self.sensor.width and 0 < h <= self.sensor.height):
+            raise SimulationError(f"crop {w}x{h} does not fit the "
+                                  f"{self.sensor.width}x{self.sensor.height} sensor")
+        if self.margin_px < 0:
+            raise SimulationError(f"margin_px must be >= 0, got {self.margin_px}")
         if self.supersample < 1:
             raise SimulationError(f"supersample must be >= 1, got {self.supersample}")
 
     @property
     def window(self) -> Intrinsics:
-        """Intrinsics of the rendered window (crop + margin)."""
-        w, h = self.crop
-        return self.sensor.crop(w + 2 * self.margin_px, h + 2 * self.margin_px)
+        """Intrinsics of the rendered window (crop + margin). The margin may reach past the
+        sensor (a full-sensor crop): surfaces just outside the field of view still send
+        interreflected light into it, whether or not a pixel sees them."""
+        return self.intrinsics.expanded(self.margin_px)
 
     @property
     def intrinsics(self) -> Intrinsics:

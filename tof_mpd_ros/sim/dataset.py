@@ -225,11 +225,12 @@ def iter_captures(spec: DatasetSpec, *, workers: int = 1, cell: SimCell | None =
 
 
 def renderer_summary(cell: SimCell | None) -> dict:
-    """What rendered the scenes, for ``dataset.json``: name, material set and, for the path
+    """What rendered the scenes, for ``dataset.json``: name, material set, the recorded crop
+    (width, height) and, for the path
     tracer, samples per pixel, depth, Russian-roulette depth and library versions."""
     cell = SimCell() if cell is None else cell
     out: dict = {"name": cell.renderer, "materials": cell.materials,
-                 "calibration": "builtin"}
+                 "calibration": "builtin", "crop": list(cell.camera.crop)}
     if cell.renderer == "pathtrace":
         from .pathtrace.render import DATASET_RR_DEPTH, versions
 
