@@ -41,7 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_pipeline import _resize, _synthetic, cpu_peak, gemm_ceiling, machine
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
-from tof_mpd_ros.correction.fcn import FCNCorrectionModel, ResidualFCN
+from tof_mpd_ros.correction.fcn import N_INPUTS, FCNCorrectionModel, ResidualFCN
 from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
 
 PAPER_MS = 165.0
@@ -64,7 +64,7 @@ def conv_flops(net: ResidualFCN, h: int, w: int) -> int:
                if isinstance(m, torch.nn.Conv2d)]
     m = net.architecture.multiple
     with torch.no_grad():
-        net.raw(torch.zeros(1, 4, -(-h // m) * m, -(-w // m) * m))
+        net.raw(torch.zeros(1, N_INPUTS, -(-h // m) * m, -(-w // m) * m))
     for handle in handles:
         handle.remove()
     return total

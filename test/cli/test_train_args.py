@@ -25,7 +25,7 @@ def test_target_clip_is_positive_numbers_or_auto() -> None:
     ("--lr 0.01 --batch-size 200 --epochs 3 --target-clip-mm 15", "patch",
      {"epochs": 3, "batch_size": 200, "lr_range": 0.01, "lr_boundary": 0.01,
       "target_clip_mm": (15.0,)}),
-    ("--model fcn", "fcn", {"epochs": 30, "batch_size": 8, "lr": 1e-3, "crop_px": 96,
+    ("--model fcn", "fcn", {"epochs": 60, "batch_size": 8, "lr": 1e-3, "crop_px": 96,
                             "target_clip_mm": 100.0}),
     ("--model fcn --lr 0.002 --batch-size 4 --crop-px 64 --target-clip-mm 50", "fcn",
      {"batch_size": 4, "lr": 0.002, "crop_px": 64, "target_clip_mm": 50.0}),

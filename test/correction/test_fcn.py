@@ -1,5 +1,5 @@
-"""The fcn model kind: receptive field, residual output (no blur across edges), sigma gating,
-the Gaussian likelihood, and its weights file."""
+"""The fcn model kind: receptive field, gated kernel plus residual output (no blur across
+edges), sigma gating, the Gaussian likelihood, and its weights file."""
 
 from __future__ import annotations
 
@@ -14,6 +14,8 @@ from weights_files import rewrite_weights
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.fcn import (
+    DETAIL_CLIP_MM,
+    LOG_AMPLITUDE_SCALE,
     FCNArchitecture,
     FCNCorrectionModel,
     ResidualFCN,
@@ -45,13 +47,16 @@ def _step_frame() -> tuple[np.ndarray, np.ndarray]:
     return r, a
 
 
-def _constant_head(model: FCNCorrectionModel, correction_mm: float, sigma_raw: float) -> None:
-    """Make the network output a constant correction and sigma (head weights zeroed)."""
+def _constant_head(model: FCNCorrectionModel, correction_mm: float, sigma_raw: float,
+                   kernel_logits: np.ndarray | None = None) -> None:
+    """Make the network output a constant correction, sigma and kernel logits (all 0 = equal
+    weights; head weights zeroed)."""
     arch = model.architecture
+    logits = np.zeros(arch.kernel_px ** 2) if kernel_logits is None else kernel_logits
     with torch.no_grad():
         model.net.head.weight.zero_()
-        model.net.head.bias.copy_(torch.tensor([correction_mm / arch.correction_scale_mm,
-                                                sigma_raw]))
+        model.net.head.bias.copy_(torch.tensor(
+            [correction_mm / arch.correction_scale_mm, sigma_raw, *logits], dtype=torch.float32))
 
 
 def test_receptive_field_reaches_beyond_64_px() -> None:
@@ -62,7 +67,8 @@ def test_receptive_field_reaches_beyond_64_px() -> None:
     assert 15 <= receptive_field_px(small) <= 25   # 5 + 2 + 8 + bilinear + 4 px by hand
 
 
-def test_output_is_the_pixels_own_range_plus_a_correction_no_blur_across_edges() -> None:
+def test_no_blur_across_a_depth_edge_whatever_the_kernel() -> None:
+    # equal weights over the whole 5 x 5 kernel: only the gate keeps the sides apart
     model = FCNCorrectionModel.untrained(IntrinsicCalibration.identity(H, W), seed=1)
     _constant_head(model, correction_mm=2.5, sigma_raw=-3.0)
     r, a = _step_frame()
@@ -74,6 +80,26 @@ def test_output_is_the_pixels_own_range_plus_a_correction_no_blur_across_edges()
     assert set(np.unique(res.range_mm[ok]).round(3)) == {302.5, 402.5}
     assert not ok[3, 4] and not ok[5, 6]
     assert np.isnan(res.range_mm[3, 4]) and res.confidence[5, 6] == 0
+
+
+def test_kernel_is_a_gated_weighted_mean_of_the_neighbours() -> None:
+    model = FCNCorrectionModel.untrained(IntrinsicCalibration.identity(H, W), seed=5)
+    rng = np.random.default_rng(5)
+    r = (350.0 + rng.normal(0.0, 3.0, (H, W))).astype(np.float32)
+    r[:, :10] += 20.0           # a 20 mm step: inside the 30 mm gate, so it is mixed
+    a = np.full((H, W), 50.0, np.float32)
+    _constant_head(model, 0.0, -3.0)
+    out = correct(model, r, a).range_mm
+    inner = out[5:-5, 15:-5]
+    # the mean of 25 pixels of 3 mm noise: 3 / 5 = 0.6 mm
+    assert 0.45 < inner.std() < 0.75 and abs(inner.mean() - 350.0) < 0.2
+    # the pixels next to the 20 mm step take part of it
+    assert 3.0 < np.median(out[5:-5, 10] - r[5:-5, 10]) < 10.0
+    # a kernel that trusts only the centre returns the pixel's own range
+    centre = np.full(25, -30.0)
+    centre[12] = 30.0
+    _constant_head(model, 0.0, -3.0, centre)
+    np.testing.assert_allclose(correct(model, r, a).range_mm, r, atol=1e-3)
 
 
 def test_sigma_gates_the_output_and_sets_the_confidence() -> None:
@@ -105,17 +131,32 @@ def test_batch_equals_single_frames_and_net_off_gives_calibrated() -> None:
     np.testing.assert_array_equal(off.range_mm, model.calibration.apply(r, a))
 
 
-def test_inputs_are_relative_to_the_frame_except_the_absolute_range_plane() -> None:
+def test_inputs_are_relative_to_the_frame_except_the_absolute_planes() -> None:
     rng = np.random.default_rng(4)
     r = rng.uniform(250, 450, (1, H, W)).astype(np.float32)
     a = rng.uniform(10, 90, (1, H, W)).astype(np.float32)
     x0, valid = fcn_inputs(r, a, 16)
     x1, _ = fcn_inputs(r + 100, a * 7, 16)
-    assert x0.shape == (1, 4, 64, 80) and valid.all()
-    torch.testing.assert_close(x0[:, [0, 2, 3]], x1[:, [0, 2, 3]], atol=1e-5, rtol=0)
+    assert x0.shape == (1, 6, 64, 80) and valid.all()
+    torch.testing.assert_close(x0[:, [0, 2, 3, 5]], x1[:, [0, 2, 3, 5]], atol=1e-4, rtol=0)
     torch.testing.assert_close(x1[0, 1, :H, :W] - x0[0, 1, :H, :W],
                                torch.full((H, W), 0.1), atol=1e-5, rtol=0)
+    torch.testing.assert_close(x1[0, 4, :H, :W] - x0[0, 4, :H, :W],
+                               torch.full((H, W), math.log(7) / LOG_AMPLITUDE_SCALE),
+                               atol=1e-5, rtol=0)
     assert float(x0[0, :, H:, :].abs().sum()) == 0     # padding is zero, marked invalid
+
+
+def test_local_detail_is_the_range_less_its_neighbours_mean_clipped() -> None:
+    r = np.full((1, H, W), 400.0, np.float32)
+    r[0, 20, 30] = 410.0        # a 10 mm bump: 10 - 10 / 48 above the mean of its 48 valid
+    r[0, 40, 40] = 600.0        # a 200 mm spike: clipped to 50 mm
+    r[0, 20, 32] = np.nan       # an invalid pixel is 0 and not in its neighbours' mean
+    x, _ = fcn_inputs(r, np.full((1, H, W), 50.0, np.float32), 16)
+    detail = x[0, 5].numpy() * DETAIL_CLIP_MM
+    assert detail[20, 30] == pytest.approx(10.0 - 10.0 / 48, abs=1e-3)
+    assert detail[40, 40] == pytest.approx(50.0) and detail[20, 32] == 0.0
+    assert detail[5, 5] == pytest.approx(0.0, abs=1e-4)
 
 
 def test_gaussian_nll_is_the_normal_log_density_and_is_lowest_at_the_true_sigma() -> None:
@@ -141,6 +182,10 @@ def test_architecture_is_validated() -> None:
         FCNArchitecture(widths=(8,))
     with pytest.raises(InputError):
         FCNArchitecture(sigma_floor_mm=0.0)
+    with pytest.raises(InputError, match="kernel_px"):
+        FCNArchitecture(kernel_px=4)
+    with pytest.raises(InputError):
+        FCNArchitecture(kernel_gate_mm=0.0)
     with pytest.raises(InputError):
         FCNCorrectionModel.untrained(_calibration(), max_sigma_mm=0.0)
 

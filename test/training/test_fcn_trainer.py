@@ -22,8 +22,13 @@ from tof_mpd_ros.correction.pipeline import correct
 from tof_mpd_ros.correction.weights import load_weights
 from tof_mpd_ros.errors import InputError, WeightsError
 from tof_mpd_ros.recordings.npz import save_npz
-from tof_mpd_ros.training import FCNTrainConfig, TrainConfig, evaluate_fcn, train_fcn
-from tof_mpd_ros.training.fcn_trainer import draw_crops, error_stats
+from tof_mpd_ros.training import FCNTrainConfig, TrainConfig, evaluate_fcn, fcn_trainer, train_fcn
+from tof_mpd_ros.training.fcn_trainer import (
+    draw_crops,
+    error_stats,
+    learning_rate,
+    sigma_gain,
+)
 
 H, W = 48, 64
 #: 16 frames x 4 crops of 32 x 32 per epoch, batch 8: ~0.2 s an epoch on one thread
@@ -64,32 +69,83 @@ def test_training_removes_most_of_a_non_local_distortion(learned) -> None:
 
 
 def test_sigma_is_calibrated_on_noise_of_known_std(identity) -> None:
-    """Noise of 2 mm on a range-dependent bias and nothing else: σ should be about 2 mm."""
+    """Noise of 2 mm on a range-dependent bias and nothing else: the kernel averages the noise
+    down and σ, learnt by the likelihood alone (no validation frames, no recalibration), is
+    the error that is left."""
     cfg = replace(SMALL, epochs=25, val_fraction=0.0)
     model, _ = train_fcn(fcn_frames(16, seed=0, noise_mm=2.0, box_mm=0.0), identity, cfg,
                          seed=0, progress=False)
     stats = evaluate_fcn(model, fcn_frames(6, seed=99, noise_mm=2.0, box_mm=0.0))
     print("noise 2 mm:", {k: round(v, 3) for k, v in stats.items()})
-    assert 2.0 / 1.5 < stats["median_sigma_mm"] < 2.0 * 1.5
+    assert model.metadata["sigma_gain"] == 1.0
+    # the bias is gone and the noise averaged: 2 mm over ~25 pixels would be 0.4 mm
+    assert 0.3 < stats["rmse_after_mm"] < 0.7 * 2.0
+    assert 1 / 1.5 < stats["median_sigma_mm"] / stats["rmse_after_mm"] < 1.5
     assert 0.85 < stats["coverage_2sigma"] < 0.99
     assert stats["coverage_1sigma"] < stats["coverage_2sigma"] < stats["coverage_3sigma"]
-    assert stats["rmse_after_mm"] < 1.2 * 2.0         # the bias is gone, the noise stays
 
 
-def test_resume_equals_uninterrupted_run(identity, tmp_path: Path) -> None:
+def test_resume_equals_uninterrupted_run(identity, tmp_path: Path, monkeypatch) -> None:
     frames = fcn_frames(6, seed=1)
     full, h_full = train_fcn(frames, identity, SMALL, seed=3, progress=False)
-    half, _ = train_fcn(frames, identity, replace(SMALL, epochs=2), seed=3,
-                        checkpoint_dir=tmp_path, progress=False)
+    # the same run killed after its second epoch's checkpoint (the cosine schedule is the
+    # run's own: it resumes at the same step of it)
+    validate, calls = fcn_trainer._validate, []
+
+    def killed_at_epoch_3(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return validate(*args, **kwargs)
+
+    monkeypatch.setattr(fcn_trainer, "_validate", killed_at_epoch_3)
+    with pytest.raises(KeyboardInterrupt):
+        train_fcn(frames, identity, SMALL, seed=3, checkpoint_dir=tmp_path, progress=False)
+    monkeypatch.setattr(fcn_trainer, "_validate", validate)
     resumed, h_res = train_fcn(frames, identity, SMALL, seed=3, checkpoint_dir=tmp_path,
                                progress=False)
     for key, value in _state(full).items():
         assert torch.equal(value, _state(resumed)[key]), key
     assert [h["loss_nll"] for h in h_res] == [h["loss_nll"] for h in h_full]
-    assert not torch.equal(_state(half)["head.weight"], _state(full)["head.weight"])
-    # another run's checkpoint is refused
+    # another run's checkpoint is refused: another seed, or a cosine run made longer (its
+    # schedule was fitted to its length); a constant-rate run may be extended
     with pytest.raises(WeightsError, match="another run"):
         train_fcn(frames, identity, SMALL, seed=4, checkpoint_dir=tmp_path, progress=False)
+    with pytest.raises(WeightsError, match="another run"):
+        train_fcn(frames, identity, replace(SMALL, epochs=6), seed=3, checkpoint_dir=tmp_path,
+                  progress=False)
+    constant = replace(SMALL, schedule="constant", epochs=2)
+    train_fcn(frames, identity, constant, seed=3, checkpoint_dir=tmp_path / "c", progress=False)
+    _, longer = train_fcn(frames, identity, replace(constant, epochs=3), seed=3,
+                          checkpoint_dir=tmp_path / "c", progress=False)
+    assert len(longer) == 3
+
+
+def test_learning_rate_decays_along_a_half_cosine() -> None:
+    lrs = [learning_rate(SMALL, step, 100) for step in (0, 50, 100)]
+    assert lrs == pytest.approx([SMALL.lr, SMALL.lr / 2, 0.0])
+    assert learning_rate(replace(SMALL, schedule="constant"), 99, 100) == SMALL.lr
+
+
+def test_sigma_gain_puts_the_gaussian_share_within_two_sigma() -> None:
+    rng = np.random.default_rng(0)
+    sigma = rng.uniform(1.0, 4.0, 200_000)
+    error = rng.normal(0.0, 1.0, sigma.size) * sigma * 1.7    # σ 1.7x too small
+    assert sigma_gain(error, sigma) == pytest.approx(1.7, rel=0.02)
+    with pytest.raises(InputError):
+        sigma_gain(np.zeros(0), np.zeros(0))
+
+
+def test_recalibration_folds_the_gain_into_the_sigma_scales(identity) -> None:
+    cfg = replace(SMALL, val_fraction=0.25)
+    model, _ = train_fcn(fcn_frames(8, seed=2), identity, cfg, seed=0, progress=False)
+    gain = model.metadata["sigma_gain"]
+    arch = model.architecture
+    assert gain > 0 and arch.sigma_floor_mm == pytest.approx(FCNArchitecture().sigma_floor_mm
+                                                             * gain)
+    # on its validation frames 95.45 % of the pixels now lie within 2 sigma
+    val = [fcn_frames(8, seed=2)[i] for i in model.metadata["val_frames"]]
+    assert evaluate_fcn(model, val)["coverage_2sigma"] == pytest.approx(0.9545, abs=0.002)
 
 
 def test_crops_are_seeded_by_seed_and_epoch() -> None:

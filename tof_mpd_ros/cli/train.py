@@ -37,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     train.add_argument("--model", choices=MODEL_KINDS, default="patch",
                        help="what to train: patch = F and G (default), fcn = the "
                             "fully-convolutional network with per-pixel sigma")
-    train.add_argument("--epochs", type=int, help="default 40 (patch) / 30 (fcn)")
+    train.add_argument("--epochs", type=int, help="default 40 (patch) / 60 (fcn)")
     train.add_argument("--batch-size", type=int,
                        help="patches (patch, default 500) or crops (fcn, default 8) per step")
     train.add_argument("--lr", type=float, help="learning rate: of F and G's SGD (patch, "

@@ -8,11 +8,19 @@ levels; the skip connections carry the full-resolution detail back to every pixe
 kernel-predicting network would have to predict kernels that large, and a plain dilated stack
 aliases on the ToF's 1-px structures (flying pixels).
 
-Why a residual, not a filter. The output is ``R + Δ(p)``: every pixel's own calibrated range
-plus a predicted correction, never a weighted mean of its neighbours, so nothing is blurred
-across a depth edge by construction. A flying pixel (a mix of both sides) gets a correction
-towards one side where the network is sure of the side, and a large predicted σ where it is
-not, and is then invalidated (``max_sigma_mm``).
+Why a predicted kernel plus a residual. Two errors of different reach are corrected. The
+noise (σ 2–9 mm per pixel on the simulated cell, most on dark pixels) needs an edge-aware mean
+over a few neighbours on the same surface; multipath needs the far context. So the output is
+``Σ_q w_q(p) R(q) + Δ(p)``: a convex combination of the calibrated ranges of the k × k
+neighbourhood of p (``kernel_px``, 5 by default; weights a softmax over its *valid* pixels,
+predicted per pixel, as in kernel-predicting denoisers) plus an additive correction Δ from the
+whole receptive field. The weights are the network's own choice of the pixels on p's surface:
+a pure residual (``kernel_px = 1``) would have to carry the mean of the neighbours' noise
+through the thin full-resolution level, which trains slowly and poorly (measured,
+``docs/method.md`` §9). A neighbour farther than ``kernel_gate_mm`` in range from p gets no
+weight, so no depth step larger than that is blurred, whatever the network predicts (tested); a
+flying pixel (a mix of both sides, far from both) keeps its own range, gets a large predicted
+σ where the network is unsure of its side and is then invalidated (``max_sigma_mm``).
 
 Why σ. The network predicts the correction's mean and standard deviation, trained with the
 Gaussian negative log-likelihood (a proper scoring rule: the expected loss is lowest at the true
@@ -22,7 +30,11 @@ Gaussian negative log-likelihood (a proper scoring rule: the expected loss is lo
 Inputs, per pixel (0 where the measurement is invalid; the frame is zero-padded to a multiple
 of ``2^(levels - 1)``): the calibrated range relative to the frame's median (per 100 mm), the
 absolute range (m: multipath depends on scale), the log amplitude relative to the frame's
-median, and the validity mask.
+median, the validity mask, the absolute log amplitude (per ``LOG_AMPLITUDE_SCALE``: the noise
+and a dark surface's bias depend on the light a pixel receives, in the camera's own units) and
+the local range detail (the range minus the mean of its valid 7 × 7 neighbours, clipped to
+±50 mm, per 50 mm: the millimetre structure the noise lives in, at a scale the first layer
+sees).
 """
 
 from __future__ import annotations
@@ -40,9 +52,15 @@ from ..calibration.intrinsic import IntrinsicCalibration, valid_measurement
 from ..errors import InputError
 
 #: input channels of :func:`fcn_inputs`
-N_INPUTS = 4
+N_INPUTS = 6
 #: range units of the relative-range channel, mm
 RANGE_SCALE_MM = 100.0
+#: units of the absolute log-amplitude channel (ln of sensor units)
+LOG_AMPLITUDE_SCALE = 8.0
+#: side of the neighbourhood of the local-detail channel, px
+DETAIL_PX = 7
+#: the local-detail channel is clipped to +-this, mm, and given in these units
+DETAIL_CLIP_MM = 50.0
 
 
 @dataclass(frozen=True)
@@ -55,20 +73,29 @@ class FCNArchitecture:
         correction_scale_mm: the correction output unit, mm (keeps the last layer well scaled).
         sigma_floor_mm: smallest σ the network can predict, mm (no pixel is certain to 0 mm).
         sigma_scale_mm: σ = floor + scale · softplus(output), mm.
+        kernel_px: side k of the predicted neighbourhood kernel (odd; 1 = the pixel's own
+            range plus the correction only).
+        kernel_gate_mm: neighbours farther than this in range from the pixel get no weight in
+            the kernel, mm.
     """
 
     widths: tuple[int, ...] = (8, 16, 32, 48, 64)
     correction_scale_mm: float = 10.0
     sigma_floor_mm: float = 0.3
     sigma_scale_mm: float = 5.0
+    kernel_px: int = 5
+    kernel_gate_mm: float = 30.0
 
     def __post_init__(self) -> None:
         if len(self.widths) < 2 or any(int(w) < 1 for w in self.widths):
             raise InputError(f"FCN widths need >= 2 levels of >= 1 channel, got {self.widths}")
         if not (self.correction_scale_mm > 0 and self.sigma_floor_mm > 0
-                and self.sigma_scale_mm > 0):
+                and self.sigma_scale_mm > 0 and self.kernel_gate_mm > 0):
             raise InputError(f"FCN output scales must be > 0: {self}")
+        if int(self.kernel_px) < 1 or int(self.kernel_px) % 2 == 0:
+            raise InputError(f"FCN kernel_px must be odd and >= 1, got {self.kernel_px}")
         object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
+        object.__setattr__(self, "kernel_px", int(self.kernel_px))
 
     @property
     def multiple(self) -> int:
@@ -85,7 +112,10 @@ def _block(c_in: int, c_out: int) -> nn.Sequential:
 
 
 class ResidualFCN(nn.Module):
-    """U-Net: inputs (B, 4, H, W) -> (correction mm, σ mm), each (B, H, W).
+    """U-Net: inputs (B, 6, H, W) -> (correction mm, σ mm), each (B, H, W).
+
+    The correction is relative to the pixel's own range: ``Σ_q w_q R(q) + Δ - R(p)`` (module
+    docstring), with R read back from the inputs' absolute-range plane.
 
     H and W must be multiples of ``architecture.multiple`` (:func:`fcn_inputs` pads).
 
@@ -106,7 +136,7 @@ class ResidualFCN(nn.Module):
             [nn.Conv2d(w[i], w[i], 3, stride=2, padding=1) for i in range(len(w) - 1)])
         self.decoders = nn.ModuleList(
             [_block(w[i] + w[i + 1], w[i]) for i in range(len(w) - 1)])
-        self.head = nn.Conv2d(w[0], 2, 1)
+        self.head = nn.Conv2d(w[0], 2 + (arch.kernel_px ** 2 if arch.kernel_px > 1 else 0), 1)
         if generator is not None:
             self._init(generator)
 
@@ -121,7 +151,8 @@ class ResidualFCN(nn.Module):
                     m.bias.uniform_(-bound, bound, generator=generator)
 
     def raw(self, x: torch.Tensor) -> torch.Tensor:
-        """(B, 2, H, W) unscaled outputs of ``x`` (B, 4, H, W)."""
+        """(B, 2 [+ k²], H, W) unscaled outputs of ``x`` (B, 6, H, W): correction, σ and the
+        kernel's logits."""
         skips = []
         for i, enc in enumerate(self.encoders):
             x = enc(x)
@@ -136,13 +167,48 @@ class ResidualFCN(nn.Module):
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(correction mm, σ mm), each (B, H, W) float32."""
-        return self.scale(self.raw(x))
+        return self.scale(self.raw(x), x)
 
-    def scale(self, out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(correction mm, σ mm) of the raw outputs (B, 2, H, W)."""
+    def scale(self, out: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(correction mm, σ mm) of the raw outputs ``out`` (B, 2 [+ k²], H, W) of the inputs
+        ``x``; in float32 whatever precision ``out`` was computed in."""
         a = self.architecture
+        out = out.float()
         sigma = a.sigma_floor_mm + a.sigma_scale_mm * tnf.softplus(out[:, 1])
-        return a.correction_scale_mm * out[:, 0], sigma
+        corr = a.correction_scale_mm * out[:, 0]
+        if a.kernel_px > 1:
+            corr = corr + kernel_mean_shift(out[:, 2:], x[:, 1].float(), x[:, 3].float(),
+                                            a.kernel_gate_mm)
+        return corr, sigma
+
+
+def kernel_mean_shift(logits: torch.Tensor, range_m: torch.Tensor, valid: torch.Tensor,
+                      gate_mm: float) -> torch.Tensor:
+    """``Σ_q w_q R(q) - R(p)``, mm: the predicted kernel's weighted mean of the neighbourhood's
+    ranges, relative to the pixel's own.
+
+    Args:
+        logits: (B, k², H, W) float32 kernel logits, row-major over the k × k neighbourhood.
+        range_m: (B, H, W) float32 range, m (0 where invalid).
+        valid: (B, H, W) float32 1 where the range is valid.
+        gate_mm: neighbours farther than this in range get no weight, mm.
+
+    Returns:
+        (B, H, W) float32, mm; 0 on invalid pixels. Invalid neighbours (and those beyond the
+        frame) get no weight.
+    """
+    k = math.isqrt(logits.shape[1])
+    b, h, w = range_m.shape
+    # differences to the centre first: the mean of ~400 mm values would lose float32 digits
+    patches = tnf.unfold(range_m[:, None], k, padding=k // 2).view(b, k * k, h, w)
+    diff_mm = (patches - range_m[:, None]) * 1000.0
+    ok = tnf.unfold(valid[:, None], k, padding=k // 2).view(b, k * k, h, w) > 0
+    ok &= diff_mm.abs() <= gate_mm
+    # a finite fill, not -inf: a pixel without a valid neighbour (the padding) must give finite
+    # gradients; its weights then spread over differences that are all 0
+    weights = torch.softmax(logits.masked_fill(~ok, -1e4), dim=1)
+    shift = (weights * diff_mm.masked_fill(~ok, 0.0)).sum(dim=1)
+    return shift * valid
 
 
 def _median_per_frame(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -164,7 +230,7 @@ def fcn_inputs(calibrated_mm: np.ndarray, amplitude: np.ndarray, multiple: int
         multiple: pad H and W up to a multiple of this.
 
     Returns:
-        ``(x, valid)``: x (B, 4, H', W') float32 (zero-padded at the bottom and right), valid
+        ``(x, valid)``: x (B, 6, H', W') float32 (zero-padded at the bottom and right), valid
         (B, H, W) bool.
     """
     r = np.asarray(calibrated_mm, np.float32)
@@ -176,22 +242,44 @@ def fcn_inputs(calibrated_mm: np.ndarray, amplitude: np.ndarray, multiple: int
     rel = (r0 - _median_per_frame(r0, valid)) / RANGE_SCALE_MM
     planes = np.stack([np.where(valid, rel, 0.0), r0 / 1000.0,
                        np.where(valid, log_a - _median_per_frame(log_a, valid), 0.0),
-                       valid.astype(np.float32)], axis=1).astype(np.float32)
+                       valid.astype(np.float32), log_a / LOG_AMPLITUDE_SCALE,
+                       np.zeros_like(r0)], axis=1).astype(np.float32)
     h, w = r.shape[-2:]
     hp, wp = -(-h // multiple) * multiple, -(-w // multiple) * multiple
     x = torch.from_numpy(planes)
+    x[:, 5] = _local_detail(torch.from_numpy(r0), torch.from_numpy(valid.astype(np.float32)))
     if (hp, wp) != (h, w):
         x = tnf.pad(x, (0, wp - w, 0, hp - h))
     return x, valid
 
 
+def _local_detail(range_mm: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
+    """(B, H, W) float32: range minus the mean of its valid ``DETAIL_PX``² neighbours, clipped
+    to ±``DETAIL_CLIP_MM`` and divided by it; 0 on invalid pixels. Inputs (B, H, W) float32,
+    range in mm (0 where invalid) and 1 / 0 validity."""
+    k = DETAIL_PX
+    total = tnf.avg_pool2d((range_mm * valid)[:, None], k, 1, k // 2, count_include_pad=True)
+    count = tnf.avg_pool2d(valid[:, None], k, 1, k // 2, count_include_pad=True)
+    mean = total[:, 0] / count[:, 0].clamp(min=1e-6)
+    detail = (range_mm - mean).clamp(-DETAIL_CLIP_MM, DETAIL_CLIP_MM) / DETAIL_CLIP_MM
+    return detail * valid
+
+
 def gaussian_nll(correction_mm: torch.Tensor, sigma_mm: torch.Tensor, target_mm: torch.Tensor,
-                 mask: torch.Tensor) -> torch.Tensor:
+                 mask: torch.Tensor, beta: float = 0.0) -> torch.Tensor:
     """Mean Gaussian negative log-likelihood (nats per pixel) of ``target`` over ``mask``:
-    ``0.5 ((t - μ) / σ)² + log σ + 0.5 log 2π``; every tensor (B, H, W)."""
+    ``0.5 ((t - μ) / σ)² + log σ + 0.5 log 2π``; every tensor (B, H, W).
+
+    ``beta`` > 0 weights each pixel's term by its σ^(2 β), held constant in the gradient (the
+    β-NLL of Seitzer et al. 2022): the plain NLL scales the mean's gradient by 1 / σ², so
+    pixels the network is unsure of stop teaching it the correction; β = 0.5 undoes half of
+    that. A positive weight that the gradient does not see leaves each pixel's optimum at its
+    true mean and σ, so the σ it learns is still the likelihood's."""
     t = torch.where(mask, target_mm, torch.zeros_like(target_mm))
     z = (t - correction_mm) / sigma_mm
     nll = 0.5 * z.square() + torch.log(sigma_mm) + 0.5 * math.log(2 * math.pi)
+    if beta:
+        nll = nll * sigma_mm.detach() ** (2 * beta)
     n = mask.sum().clamp(min=1)
     return torch.where(mask, nll, torch.zeros_like(nll)).sum() / n
 
@@ -268,7 +356,7 @@ def run_fcn(net: ResidualFCN, calibrated_mm: np.ndarray, amplitude: np.ndarray, 
     x = x.to(dev).contiguous(memory_format=torch.channels_last)
     with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=precision == "bfloat16"):
         out = net.raw(x)
-    corr, sigma = net.scale(out.float())
+    corr, sigma = net.scale(out, x)
     nan = np.float32(np.nan)
     corr_np = corr[:, :h, :w].float().cpu().numpy()
     sigma_np = sigma[:, :h, :w].float().cpu().numpy()

@@ -8,10 +8,19 @@ network's input planes on the *whole* frames (so the frame-median normalisation 
 random square crops:
 
 * loss: :func:`~tof_mpd_ros.correction.fcn.gaussian_nll` of the target under the predicted
-  (correction, σ), averaged over the crop pixels that have a valid measurement and a reference.
+  (correction, σ), averaged over the crop pixels that have a valid measurement and a reference,
+  each pixel weighted by its σ^(2 β) (β-NLL, ``beta``; the history reports the plain NLL).
   The clip keeps a few flying pixels 300 mm off from dominating the mean; the likelihood lets
   the network give such pixels a large σ (they are then invalidated at inference,
   ``max_sigma_mm``) instead of bending the correction of their neighbours towards them;
+* learning rate: ``lr`` decayed to 0 along a half cosine over every step of the run
+  (``schedule="cosine"``; the last epoch is the one kept), or constant. A function of the step
+  alone, so a resumed run takes the same steps;
+* σ recalibration: after the last epoch one gain on σ is fitted on the validation frames so
+  that 95.45 % of their pixels lie within 2 σ (the Gaussian's share), and folded into the
+  network's σ output scales (``metadata["sigma_gain"]``). A network trained on a few scenes
+  is over-confident on scenes it has not seen; a single scale fixes that without touching the
+  correction (no validation frames: gain 1);
 * crops: every epoch draws ``crops_per_frame`` crops of ``crop_px`` x ``crop_px`` per training
   frame (a frame smaller than that is used whole) at uniform positions, shuffled, from a
   generator seeded by ``(seed, epoch)``: runs are deterministic and a resumed run is identical
@@ -41,7 +50,7 @@ import math
 import os
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -83,6 +92,10 @@ log = logging.getLogger(__name__)
 UNRELIABLE_MM = WRONG_MM
 #: validation and evaluation run on this many whole frames at a time
 FRAMES_PER_CHUNK = 8
+#: learning-rate schedules of :class:`FCNTrainConfig`
+SCHEDULES = ("cosine", "constant")
+#: the Gaussian's share within 2 σ, which the σ recalibration matches
+TWO_SIGMA_SHARE = 0.9545
 
 
 @dataclass(frozen=True)
@@ -95,7 +108,10 @@ class FCNTrainConfig:
         crop_px: side of the square crops, px (a frame smaller than that is used whole; the
             network pads to a multiple of ``architecture.multiple``).
         crops_per_frame: crops drawn per training frame and epoch.
-        lr: Adam's learning rate.
+        lr: Adam's (peak) learning rate.
+        schedule: ``"cosine"`` (lr decayed to 0 over the run) or ``"constant"``.
+        beta: β of the β-NLL (0 = the plain Gaussian NLL).
+        recalibrate_sigma: fit the σ gain on the validation frames after training.
         weight_decay: Adam's L2 penalty.
         val_fraction: share of the frames (or groups) held out for validation (0: none).
         target_clip_mm: T, the target ``R* - R`` is clipped to +-T, mm.
@@ -106,11 +122,14 @@ class FCNTrainConfig:
             leave as is.
     """
 
-    epochs: int = 30
+    epochs: int = 60
     batch_size: int = 8
     crop_px: int = 96
     crops_per_frame: int = 4
     lr: float = 1e-3
+    schedule: str = "cosine"
+    beta: float = 0.5
+    recalibrate_sigma: bool = True
     weight_decay: float = 0.0
     val_fraction: float = 0.1
     target_clip_mm: float = 100.0
@@ -125,6 +144,10 @@ class FCNTrainConfig:
                              f">= 1: {self}")
         if not (self.lr > 0 and self.weight_decay >= 0):
             raise InputError(f"need lr > 0 and weight_decay >= 0: {self}")
+        if self.schedule not in SCHEDULES:
+            raise InputError(f"schedule must be one of {SCHEDULES}, got {self.schedule!r}")
+        if not 0 <= self.beta <= 1:
+            raise InputError(f"beta must be in [0, 1], got {self.beta}")
         if not 0 <= self.val_fraction < 1:
             raise InputError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
         if not (self.target_clip_mm > 0 and self.max_sigma_mm > 0):
@@ -231,21 +254,32 @@ def crop_batch(data: FCNTrainingData, crops: torch.Tensor, cfg: FCNTrainConfig
     return x, t, m
 
 
+def learning_rate(cfg: FCNTrainConfig, step: int, total_steps: int) -> float:
+    """The learning rate of the ``step``-th Adam step (0-based) of a run of ``total_steps``."""
+    if cfg.schedule == "constant":
+        return cfg.lr
+    return 0.5 * cfg.lr * (1.0 + math.cos(math.pi * min(step, total_steps) / max(total_steps, 1)))
+
+
 def _step(model: torch.nn.Module, opt: torch.optim.Optimizer, x: torch.Tensor,
-          t: torch.Tensor, m: torch.Tensor, ranks: Ranks) -> tuple[float, float]:
-    """One Adam step; returns (this rank's NLL sum, its masked pixels)."""
+          t: torch.Tensor, m: torch.Tensor, ranks: Ranks, beta: float) -> tuple[float, float]:
+    """One Adam step; returns (this rank's plain NLL sum, its masked pixels)."""
     h, w = t.shape[-2:]
     corr, sigma = model(x)
-    nll = gaussian_nll(corr[:, :h, :w], sigma[:, :h, :w], t, m)
+    corr, sigma = corr[:, :h, :w], sigma[:, :h, :w]
+    weighted = gaussian_nll(corr, sigma, t, m, beta)
     n = float(m.sum())
     n_all = sum_over_ranks([n], ranks)[0]
     # one process: the mean itself (scale exactly 1); W ranks: this rank's share of the mean
     # over every rank's pixels, times W, which DDP's average divides out again
-    loss = nll * (n * ranks.world / max(n_all, 1.0))
+    loss = weighted * (n * ranks.world / max(n_all, 1.0))
     opt.zero_grad(set_to_none=True)
     loss.backward()
     opt.step()
-    return float(nll.item()) * n, n
+    if beta:
+        with torch.no_grad():
+            weighted = gaussian_nll(corr, sigma, t, m)
+    return float(weighted.item()) * n, n
 
 
 def _run_epoch(model: torch.nn.Module, opt: torch.optim.Optimizer, data: FCNTrainingData,
@@ -256,13 +290,19 @@ def _run_epoch(model: torch.nn.Module, opt: torch.optim.Optimizer, data: FCNTrai
     crops = draw_crops(train_ids, data.frame_shape, cfg, seed, epoch)
     mine = crops[shard_pixels(torch.arange(crops.shape[0]), ranks)]
     batch = rank_batch_size(cfg.batch_size, ranks)
+    per_epoch = -(-mine.shape[0] // batch)
+    total = per_epoch * cfg.epochs
     dev = ranks.device
     model.train()
     nll_sum = n_pixels = 0.0
     t0 = time.perf_counter()
-    for b0 in range(0, mine.shape[0], batch):
+    for i, b0 in enumerate(range(0, mine.shape[0], batch)):
         x, t, m = crop_batch(data, mine[b0:b0 + batch], cfg)
-        s, n = _step(model, opt, x.to(dev), t.to(dev), m.to(dev), ranks)
+        # channels-last: oneDNN's convolutions run ~1.5x faster on NHWC on the CPU
+        x = x.contiguous(memory_format=torch.channels_last)
+        for group in opt.param_groups:
+            group["lr"] = learning_rate(cfg, epoch * per_epoch + i, total)
+        s, n = _step(model, opt, x.to(dev), t.to(dev), m.to(dev), ranks, cfg.beta)
         nll_sum += s
         n_pixels += n
         bar.update(x.shape[0])
@@ -345,6 +385,41 @@ def _validate(net: ResidualFCN, data: FCNTrainingData, val_ids: list[int],
             "val_median_sigma_mm": s["median_sigma_mm"]}
 
 
+def sigma_gain(error_mm: np.ndarray, sigma_mm: np.ndarray) -> float:
+    """The factor on σ that puts ``TWO_SIGMA_SHARE`` of the errors within 2 σ.
+
+    Args:
+        error_mm: (M,) errors of the corrected range, mm.
+        sigma_mm: (M,) predicted σ, mm (> 0).
+
+    Raises:
+        InputError: no pixel.
+    """
+    if error_mm.size == 0:
+        raise InputError("no pixel to recalibrate sigma on")
+    z = np.abs(np.asarray(error_mm, np.float64)) / np.asarray(sigma_mm, np.float64)
+    return float(np.quantile(z, TWO_SIGMA_SHARE) / 2.0)
+
+
+def recalibrate_sigma(net: ResidualFCN, data: FCNTrainingData, val_ids: list[int]) -> float:
+    """Fit :func:`sigma_gain` on the validation frames (whole, through :func:`run_fcn`) and
+    fold it into ``net``'s σ output scales; returns the gain."""
+    errors, sigmas = [], []
+    for c0 in range(0, len(val_ids), FRAMES_PER_CHUNK):
+        ids = val_ids[c0:c0 + FRAMES_PER_CHUNK]
+        cal = data.calibrated[ids]
+        corr, sigma, _ = run_fcn(net, cal, data.amplitude[ids])
+        ok = data.usable[ids].numpy()
+        errors.append((cal + corr - data.reference[ids])[ok])
+        sigmas.append(sigma[ok])
+    gain = sigma_gain(np.concatenate(errors), np.concatenate(sigmas))
+    a = net.architecture
+    net.architecture = replace(a, sigma_floor_mm=a.sigma_floor_mm * gain,
+                               sigma_scale_mm=a.sigma_scale_mm * gain)
+    log.info("sigma recalibrated on %d validation frames: gain %.3f", len(val_ids), gain)
+    return gain
+
+
 def evaluate_fcn(model: FCNCorrectionModel, frames: Sequence[ToFFrame]) -> dict[str, float]:
     """Accuracy and σ calibration of ``model`` on whole frames with references, through
     :func:`~tof_mpd_ros.correction.pipeline.correct` (errors of the corrected range before the
@@ -374,7 +449,9 @@ def evaluate_fcn(model: FCNCorrectionModel, frames: Sequence[ToFFrame]) -> dict[
 def _fingerprint(cfg: FCNTrainConfig, seed: int, digest: str, val_ids: list[int],
                  world: int) -> str:
     """What a checkpoint must match to be resumed (see the module docstring)."""
-    settings = {k: v for k, v in cfg.as_dict().items() if k not in ("epochs", "num_threads")}
+    # a constant-rate run can be extended by more epochs; a cosine one is fitted to its length
+    free = ("epochs", "num_threads") if cfg.schedule == "constant" else ("num_threads",)
+    settings = {k: v for k, v in cfg.as_dict().items() if k not in free}
     run = {"kind": "fcn", "config": settings, "seed": seed, "data": digest, "val": val_ids,
            **({"world": world} if world > 1 else {})}
     return json.dumps(run, sort_keys=True)
@@ -463,7 +540,7 @@ def _train_fcn(frames: Sequence[ToFFrame], calibration: IntrinsicCalibration,
     rank_batch_size(cfg.batch_size, ranks)  # a batch that does not divide: refuse now
     model = FCNCorrectionModel.untrained(calibration, cfg.architecture, seed=seed,
                                          max_sigma_mm=cfg.max_sigma_mm)
-    net = model.net
+    net = model.net.to(memory_format=torch.channels_last)
     ddp = wrap(net, ranks)
     opt = torch.optim.Adam(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     fingerprint = _fingerprint(cfg, seed, data.digest, val_ids, ranks.world)
@@ -486,16 +563,19 @@ def _train_fcn(frames: Sequence[ToFFrame], calibration: IntrinsicCalibration,
     finally:
         torch.set_num_threads(threads)
     check_in_step(net, ranks)
-    net.to("cpu")
+    net.to("cpu", memory_format=torch.contiguous_format)
     net.eval()
+    gain = (recalibrate_sigma(net, data, val_ids) if cfg.recalibrate_sigma and val_ids
+            else 1.0)
     model.metadata = {"training_data_digest": data.digest, "seed": seed,
                       "train_config": cfg.as_dict(), "n_frames": data.n_frames,
                       "train_frames": len(train_ids), "val_frames": val_ids,
-                      "final": history[-1] if history else {}}
+                      "sigma_gain": gain, "final": history[-1] if history else {}}
     if weights_path is not None and ranks.main:
         save_weights(weights_path, model, training_data_digest=data.digest, overwrite=overwrite)
     return model, history
 
 
 __all__ = ["FCNTrainConfig", "FCNTrainingData", "crop_batch", "draw_crops", "error_stats",
-           "evaluate_fcn", "prepare_fcn_data", "train_fcn"]
+           "evaluate_fcn", "learning_rate", "prepare_fcn_data", "recalibrate_sigma",
+           "sigma_gain", "train_fcn"]
