@@ -83,6 +83,7 @@ WRITING = {
     "sim predict": "sim predict {one} --fuse-views 0",
     "sim merge": "sim merge {shard0} {shard1}",
     "calibrate intrinsic": "calibrate intrinsic {frames}",
+    "calibrate install": "calibrate install {calibration} --weights {weights}",
     "calibrate hand-eye": "calibrate hand-eye {tmp}/session --simulate --views 4 --min-views 3",
     "train": "train {frames} --calibration {calibration} --epochs 1 "
              "--max-samples-per-frame 100 --target-clip-mm 15 --edge-thresholds paper",
@@ -93,7 +94,7 @@ WRITING = {
 }
 #: commands whose output is one .npz file (a directory otherwise, or a JSON for hand-eye)
 NPZ_OUTPUTS = {"recording export-npz", "recording import-adi", "sim predict", "calibrate intrinsic",
-               "train", "correct"}
+               "calibrate install", "train", "correct"}
 #: run for minutes even on tiny inputs: their -o/--output is only parsed here
 TOO_SLOW = {"mismatch": "mismatch real.npz", "mismatch-benchmark": "mismatch-benchmark",
             "demo": "demo"}

@@ -45,7 +45,7 @@ from tof_mpd_ros.correction.depth_stream import (  # noqa: E402
     decode_amplitude,
     decode_depth,
 )
-from tof_mpd_ros.correction.pipeline import CorrectionModel  # noqa: E402
+from tof_mpd_ros.correction.pipeline import CorrectionModel, central_window, correct  # noqa: E402
 from tof_mpd_ros.correction.weights import load_weights, save_weights  # noqa: E402
 from tof_mpd_ros.image_encoding import image_to_array  # noqa: E402
 from tof_mpd_ros.nodes.ros_messages import (  # noqa: E402
@@ -855,12 +855,17 @@ def test_stream_corrector_reasons_and_conventions(weights: dict[str, Path]) -> N
     for depth, amplitude, intr, reason in (
             (z, amp[:-1], k, "size_mismatch"),
             (z, amp, Intrinsics.from_fov(w + 12, h + 6, 70.0), "size_mismatch"),
-            (z[:h - 1, :w], amp[:h - 1, :w], Intrinsics.from_fov(w, h - 1, 70.0),
-             "size_mismatch"),
             (np.full_like(z, np.nan), amp, k, "no_valid_pixel")):
         with pytest.raises(FrameRejected) as err:
             z_stream.correct(depth, amplitude, intr)
         assert err.value.reason == reason
+    # a frame smaller than the model's is corrected whole, as the model's central window
+    small_k = Intrinsics.from_fov(w, h - 1, 70.0)
+    small = z_stream.correct(z[:h - 1, :w], amp[:h - 1, :w], small_k)
+    alone = correct(central_window(model, w, h - 1), small_k.z_to_radial(z[:h - 1, :w]),
+                    amp[:h - 1, :w])
+    assert small.depth_mm.shape == (h - 1, w)
+    np.testing.assert_allclose(small.depth_mm, small_k.radial_to_z(alone.range_mm), atol=1e-3)
     # z in -> z out equals radial in -> radial out, converted per pixel of the crop.
     out_z = z_stream.correct(z, amp, k)
     crop = k.crop(w, h)

@@ -5,8 +5,9 @@ One corrector process (the shipped weights, ``input_convention:=radial``: the AD
 range) receives each mode as a camera driver publishes it: 16UC1 depth in mm (0 = invalid; pixels
 of confidence above 4 set to 0, as docs/real_cameras.md asks), mono16 active brightness and a
 CameraInfo of the assumed 75° centred pinhole, all stamped alike; mode 3 once more as 32FC1
-metres with NaN. The shipped weights process a central 180x140 window, so the node crops: the
-output is that window, with the window's CameraInfo.
+metres with NaN. The node is given the paper's central 180x140 window (``crop_width`` /
+``crop_height``; the shipped weights cover the whole 320x240 sensor), so it crops: the output is
+that window, with the window's CameraInfo.
 
 The numbers asserted (measured on a Zen 4 machine; the bounds and why are beside each test):
 the output equals the offline stream corrector (``DepthStreamCorrector``, the node's own
@@ -115,8 +116,9 @@ def adi_run(adi_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> AdiRun:
     counters after the last and a clean stop."""
     log = tmp_path_factory.mktemp("adi_node") / "corrector.log"
     run = AdiRun()
-    process = start_node("corrector", {"input_convention": "radial",
-                                       "diagnostics_period_s": 0.25, **RELIABLE_INPUTS},
+    process = start_node("corrector", {"input_convention": "radial", "crop_width": 180,
+                                       "crop_height": 140, "diagnostics_period_s": 0.25,
+                                       **RELIABLE_INPUTS},
                          ADI_DOMAIN, log, remap=("__ns:=/tof",))
     try:
         with listener(ADI_DOMAIN) as lis:
@@ -166,7 +168,8 @@ def adi_run(adi_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> AdiRun:
 @pytest.fixture(scope="module")
 def offline() -> DepthStreamCorrector:
     """The node's pipeline in this process, with the shipped weights and radial input."""
-    return DepthStreamCorrector(load_weights(default_weights_path()), input_convention="radial")
+    return DepthStreamCorrector(load_weights(default_weights_path()), input_convention="radial",
+                                crop=(180, 140))
 
 
 def window_of(msg: Image) -> np.ndarray:

@@ -3,7 +3,7 @@
 
 A small synthetic folder in the ADI layout tests the importer's rules everywhere; the real office
 frames (``../shared/realdata/adi_tof_office``, fixture ``adi_dir``) go the whole way: import,
-correction with the shipped weights (central 180x140 window of the 512x512 frame) and
+correction with the shipped weights (on the paper's central 180x140 window of the 512x512 frame) and
 ``import-npz`` / ``export-npz`` without losing a bit.
 """
 
@@ -140,22 +140,29 @@ def test_cropped_frame_is_the_central_window_with_its_intrinsics() -> None:
         frame.cropped(201, 140)
 
 
-def test_correct_crops_a_larger_frame_and_refuses_a_smaller_one(
+def test_correct_crops_to_the_window_and_corrects_a_smaller_frame_whole(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     folder = write_adi_folder(tmp_path / "adi", modes=(3,))
     run(capsys, "recording", "import-adi", folder, "-o", tmp_path / "a.npz")
-    code, result, _ = run(capsys, "correct", tmp_path / "a.npz", "-o", tmp_path / "c.npz")
+    code, result, _ = run(capsys, "correct", tmp_path / "a.npz", "-o", tmp_path / "c.npz",
+                          "--crop", "180x140")
     assert code == 0 and result["window"] == [180, 140]
+    assert result["weights_frame"] == [320, 240]      # the shipped weights: the whole sensor
     assert result["cropped_from"] == [[SYN_W, SYN_H]]
     (corrected,) = load_npz(tmp_path / "c.npz")
     assert corrected.intrinsics == adi_intrinsics(SYN_W, SYN_H).crop(180, 140)
-    small = read_adi(folder, 3).cropped(100, 80)
-    save_npz(tmp_path / "small.npz", [small])
-    code, _, err = run(capsys, "correct", tmp_path / "small.npz", "-o", tmp_path / "d.npz")
-    assert code == 2  # one line after the progress bar's
-    assert err.strip().splitlines()[-1] == (f"tof-mpd correct: error: {tmp_path / 'small.npz'}: "
-                                            "frames are 100x80, smaller than the weights' "
-                                            "180x140 window")
+    # by default the window is the weights' frame: this 200x160 frame is smaller, so it is
+    # corrected whole, as the central 200x160 of the weights' pixels
+    code, result, _ = run(capsys, "correct", tmp_path / "a.npz", "-o", tmp_path / "d.npz")
+    assert code == 0 and result["window"] == [320, 240] and result["cropped_from"] == []
+    (whole,) = load_npz(tmp_path / "d.npz")
+    assert whole.range_mm.shape == (SYN_H, SYN_W)
+    assert whole.intrinsics == adi_intrinsics(SYN_W, SYN_H)
+    code, _, err = run(capsys, "correct", tmp_path / "a.npz", "-o", tmp_path / "e.npz",
+                       "--crop", "400x300")
+    assert code == 2
+    assert err.strip().splitlines()[-1] == ("tof-mpd correct: error: --crop 400x300 is larger "
+                                            "than the weights' 320x240 frame")
 
 
 # -- the real office frames, the whole way ------------------------------------------------------
@@ -169,7 +176,8 @@ def office(adi_dir: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[int,
                                                           "imported_back", "corrected_back")}
         assert main(["recording", "import-adi", str(adi_dir), "--mode", str(mode), "-o",
                      str(p["imported"])]) == 0
-        assert main(["correct", str(p["imported"]), "-o", str(p["corrected"])]) == 0
+        assert main(["correct", str(p["imported"]), "-o", str(p["corrected"]),
+                     "--crop", "180x140"]) == 0
         for name in ("imported", "corrected"):
             rec = out / f"{name}{mode}_recording"
             assert main(["recording", "import-npz", str(p[name]), "-o", str(rec)]) == 0
@@ -209,7 +217,7 @@ def test_office_frame_corrected_by_the_cli_equals_the_node_pipeline(adi_dir: Pat
     assert corrected.intrinsics == window
     assert (window.cx, window.cy) == (255.5 - 166, 255.5 - 186)
     stream = DepthStreamCorrector(load_weights(default_weights_path()),
-                                  input_convention="radial")
+                                  input_convention="radial", crop=(180, 140))
     expected = stream.correct(imported.range_mm, imported.amplitude, imported.intrinsics)
     assert expected.intrinsics == window
     np.testing.assert_allclose(corrected.range_mm, expected.depth_mm, atol=1e-3)

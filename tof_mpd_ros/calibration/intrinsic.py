@@ -114,6 +114,24 @@ class IntrinsicCalibration:
         return cls(np.zeros(shape, np.float32), np.ones(shape, np.float32),
                    np.zeros(shape, np.float32), np.zeros(shape, bool), amplitude_term)
 
+    def central(self, width: int, height: int) -> IntrinsicCalibration:
+        """The calibration of the central ``width`` x ``height`` window of these pixels (the
+        window :meth:`~tof_mpd_ros.camera.Intrinsics.crop_window` cuts from an image).
+
+        Raises:
+            CalibrationError: the window does not fit.
+        """
+        h, w = self.shape
+        if not (0 < width <= w and 0 < height <= h):
+            raise CalibrationError(f"a {width}x{height} window does not fit in the "
+                                   f"calibration's {w}x{h}")
+        top, left = (h - height) // 2, (w - width) // 2
+        rows, cols = slice(top, top + height), slice(left, left + width)
+        return IntrinsicCalibration(
+            self.c0[rows, cols], self.c1[rows, cols], self.c2[rows, cols],
+            self.fitted[rows, cols], self.amplitude_term,
+            None if self.rms_mm is None else self.rms_mm[rows, cols])
+
     @property
     def is_identity(self) -> bool:
         return bool((self.c0 == 0).all() and (self.c1 == 1).all() and (self.c2 == 0).all())

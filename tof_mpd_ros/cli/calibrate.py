@@ -32,7 +32,49 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     intrinsic.add_argument("--amplitude-term", choices=("linear", "inverse"), default="linear",
                            help="how amplitude enters the model (default linear)")
     intrinsic.set_defaults(func=run_intrinsic)
+    _register_install(commands)
     _register_hand_eye(commands)
+
+
+def _register_install(commands: argparse._SubParsersAction) -> None:
+    install = commands.add_parser(
+        "install", help="put an intrinsic calibration into a weights file (networks kept)",
+        description="Replace the per-pixel intrinsic calibration of a weights file (either "
+                    "kind) by CALIBRATION (from `tof-mpd calibrate intrinsic`), keeping the "
+                    "networks: the calibration is the camera's own, the networks are learnt "
+                    "physics that work on any calibrated frame. The weights' frame becomes "
+                    "the calibration's (e.g. the whole 320x240 sensor for weights trained on "
+                    "the 180x140 crop). Measure the result on test frames of that size "
+                    "(`tof-mpd evaluate`).",
+        epilog="example: tof-mpd calibrate install full_sensor.npz --weights weights.npz "
+               "-o weights_full.npz")
+    install.add_argument("calibration", type=Path, help="calibration .npz")
+    install.add_argument("--weights", type=Path, help="weights file (default: shipped weights)")
+    add_output(install, "weights .npz to write")
+    install.add_argument("--overwrite", action="store_true")
+    install.set_defaults(func=run_install)
+
+
+def run_install(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from ..calibration import load_calibration
+    from ..correction.weights import save_weights
+    from .correct import load_model
+
+    model = load_model(args.weights)
+    calibration = load_calibration(args.calibration)
+    before = model.shape
+    weights = "shipped" if args.weights is None else str(args.weights)
+    installed = replace(model, calibration=calibration, metadata={
+        **model.metadata, "calibration_installed": {
+            "from": str(args.calibration), "into": weights,
+            "frame_before": [before[1], before[0]]}})
+    save_weights(args.output, installed, overwrite=args.overwrite)
+    print(json.dumps({"output": str(args.output), "kind": model.kind,
+                      "frame_before": [before[1], before[0]],
+                      "frame": [calibration.shape[1], calibration.shape[0]]}))
+    return 0
 
 
 def fit_from_file(path: Path, amplitude_term: str = "linear"

@@ -7,6 +7,7 @@ import json
 import time
 from pathlib import Path
 
+from .arguments import window_size
 from .output import add_output
 
 
@@ -19,15 +20,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                     "corrected radial range (references, poses and stamps are kept); an NPZ "
                     "written with fcn weights also holds sigma_mm, the predicted standard "
                     "deviation per pixel (a recording has no topic for it). Frames "
-                    "larger than the weights' window (180x140 for the shipped weights) are "
-                    "cropped to its central window, as the corrector node does: the output "
-                    "holds the window, with its intrinsics. Tens of milliseconds per 180x140 "
+                    "larger than the processed window (--crop; by default the weights' whole "
+                    "frame, the full 320x240 sensor for the shipped weights) are cropped to "
+                    "its central window, as the corrector node does: the output holds the "
+                    "window, with its intrinsics; smaller frames are corrected whole, as the "
+                    "central window of the weights' pixels. Tens of milliseconds per 180x140 "
                     "frame on a CPU.",
         epilog="example: tof-mpd correct my_recording/ -o corrected/ --weights weights.npz")
     correct.add_argument("input", type=Path, help="recording directory or .npz")
     add_output(correct, "output recording directory or .npz", was_positional=True)
     correct.add_argument("--weights", type=Path, help="weights file (default: shipped weights)")
     correct.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    correct.add_argument("--crop", metavar="WxH", type=window_size, default=None,
+                         help="processed central window, e.g. 180x140 (the paper's crop); "
+                              "default: the weights' whole frame")
     correct.add_argument("--overwrite", action="store_true")
     correct.set_defaults(func=run_correct)
 
@@ -43,7 +49,12 @@ def run_correct(args: argparse.Namespace) -> int:
     from ..recordings import is_npz, save_npz, write_frames
 
     model = load_model(args.weights)
-    height, width = model.shape
+    width, height = args.crop or model.shape[::-1]
+    if width > model.shape[1] or height > model.shape[0]:
+        from ..errors import InputError
+
+        raise InputError(f"--crop {width}x{height} is larger than the weights' "
+                         f"{model.shape[1]}x{model.shape[0]} frame")
     seconds: list[float] = []
     cropped_from: set[tuple[int, int]] = set()
     sigmas: list = []
@@ -62,7 +73,7 @@ def run_correct(args: argparse.Namespace) -> int:
     ms = sorted(1e3 * s for s in seconds)
     summary = {"output": str(args.output), "frames": count, "model_kind": model.kind,
                "median_ms_per_frame": ms[len(ms) // 2] if ms else None,
-               "window": [width, height],
+               "window": [width, height], "weights_frame": list(model.shape[::-1]),
                "cropped_from": [[w, h] for h, w in sorted(cropped_from)],
                "sigma_mm_written": sigma_written}
     print(json.dumps(summary))
@@ -78,22 +89,22 @@ def _corrected_frames(args: argparse.Namespace, model, seconds: list[float],
 
     from tqdm import tqdm
 
-    from ..correction.pipeline import correct
-    from ..errors import InputError
+    from ..correction.pipeline import central_window, correct
     from ..recordings import count_frames, iter_frames
 
-    height, width = model.shape
+    width, height = args.crop or model.shape[::-1]
+    windows: dict = {}
     for frame in tqdm(iter_frames(args.input), total=count_frames(args.input),
                       desc="correcting", unit="frame"):
-        if frame.intrinsics.shape != model.shape:  # the node's central window
-            k = frame.intrinsics
-            if k.width < width or k.height < height:
-                raise InputError(f"{args.input}: frames are {k.width}x{k.height}, smaller "
-                                 f"than the weights' {width}x{height} window")
+        k = frame.intrinsics
+        h, w = min(height, k.height), min(width, k.width)  # the node's central window
+        if k.shape != (h, w):
             cropped_from.add(k.shape)
-            frame = frame.cropped(width, height)
+            frame = frame.cropped(w, h)
+        if (h, w) not in windows:
+            windows[(h, w)] = central_window(model, w, h)
         start = time.perf_counter()
-        result = correct(model, frame.range_mm, frame.amplitude, device=args.device)
+        result = correct(windows[(h, w)], frame.range_mm, frame.amplitude, device=args.device)
         seconds.append(time.perf_counter() - start)
         if result.sigma_mm is not None:
             sigmas.append(result.sigma_mm)

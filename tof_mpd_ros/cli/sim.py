@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 from ..errors import InputError, SimulationError
+from .arguments import window_size
 from .output import add_output
 
 #: the one-line error when ``--renderer pathtrace`` cannot load the path tracer
@@ -78,7 +79,7 @@ def _register_dataset(commands: argparse._SubParsersAction) -> None:
     dataset.add_argument("--spp", type=int, default=64,
                          help="path tracer samples per pixel (16, 32, 48, 64 or a multiple of "
                               "64; default 64)")
-    dataset.add_argument("--crop", metavar="WxH", type=_crop_arg, default=None,
+    dataset.add_argument("--crop", metavar="WxH", type=window_size, default=None,
                          help="recorded central window of the 320x240 sensor: the paper's "
                               "180x140 (default) or e.g. 320x240 for the whole sensor")
     dataset.add_argument("--shard", metavar="I/N", default=None,
@@ -100,17 +101,6 @@ def _register_merge(commands: argparse._SubParsersAction) -> None:
     merge.add_argument("shards", type=Path, nargs="+", metavar="SHARD",
                        help="shard directories")
     merge.set_defaults(func=run_merge)
-
-
-def _crop_arg(text: str) -> tuple[int, int]:
-    """``320x240`` -> (320, 240)."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT in pixels, got {text!r}") from None
-    if w < 1 or h < 1:
-        raise argparse.ArgumentTypeError(f"width and height must be >= 1, got {text!r}")
-    return w, h
 
 
 def _spec(args: argparse.Namespace):

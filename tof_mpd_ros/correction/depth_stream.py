@@ -37,7 +37,7 @@ from ..validation import check_array
 from . import geodesic
 from .edges import edge_map_from_best
 from .fcn import FCNCorrectionModel
-from .pipeline import CorrectionModel, GeodesicParams, correct
+from .pipeline import CorrectionModel, GeodesicParams, central_window, correct
 
 CONVENTIONS = ("z", "radial")
 
@@ -203,12 +203,15 @@ def decode_amplitude(encoding: str, height: int, width: int, step: int, is_bigen
 class DepthStreamCorrector:
     """Applies a correction model of either kind to full camera frames.
 
-    The model's (H, W) is the processed window: the central crop of each input frame. Inputs in
-    z-depth are converted to radial range for the model and the output back to z-depth, per
-    pixel with the pinhole rays of the crop (lens distortion is not modelled).
+    The processed window is the central crop of each input frame: ``crop`` if given, else the
+    model's whole (H, W), and never more than the input (a frame smaller than the window is
+    processed whole, as the central window of the model's pixels: :func:`central_window`). So
+    full-sensor weights return full frames and still correct the paper's central 180x140 crop.
+    Inputs in z-depth are converted to radial range for the model and the output back to
+    z-depth, per pixel with the pinhole rays of the crop (lens distortion is not modelled).
 
     Args:
-        model: the loaded correction model (its crop defines the processed window).
+        model: the loaded correction model.
         input_convention: ``"z"`` when inputs are REP 118 z-depth, ``"radial"`` when they are
             radial ToF range; outputs follow the same convention.
         device: torch device for the networks (``"cpu"`` by default).
@@ -220,14 +223,17 @@ class DepthStreamCorrector:
         geodesic: edge thresholds and geodesic filter constants replacing the model's (the
             weights file's); None keeps the model's. Patch kind only (an fcn model has none:
             its ``geodesic`` is None).
+        crop: (width, height) of the processed central window; None = the model's frame.
 
     Raises:
-        InputError: an unknown convention, ``threads`` < 0, or ``geodesic`` for an fcn model.
+        InputError: an unknown convention, ``threads`` < 0, ``geodesic`` for an fcn model, or
+            a ``crop`` larger than the model's frame.
     """
 
     def __init__(self, model: CorrectionModel | FCNCorrectionModel, *,
                  input_convention: str = "z", device: str = "cpu", threads: int = 0,
-                 geodesic: GeodesicParams | None = None) -> None:
+                 geodesic: GeodesicParams | None = None,
+                 crop: tuple[int, int] | None = None) -> None:
         if input_convention not in CONVENTIONS:
             raise InputError(f"input_convention must be one of {CONVENTIONS}, "
                              f"got {input_convention!r}")
@@ -247,6 +253,18 @@ class DepthStreamCorrector:
         self.input_convention = input_convention
         self.device = device
         self.crop_height, self.crop_width = model.shape
+        self._windows: dict[tuple[int, int], CorrectionModel | FCNCorrectionModel] = {}
+        if crop is not None:
+            self.crop_width, self.crop_height = crop
+            self._window_model(self.crop_height, self.crop_width)  # refuse a bad crop now
+
+    def _window_model(self, height: int, width: int) -> CorrectionModel | FCNCorrectionModel:
+        """The model on its central ``width`` x ``height`` window (cached: the patch kind's
+        engine and buffers belong to the model object)."""
+        key = (height, width)
+        if key not in self._windows:
+            self._windows[key] = central_window(self.model, width, height)
+        return self._windows[key]
 
     def warm_up(self) -> float:
         """Correct one synthetic frame (a tilted plane about 500 mm away), so that the first
@@ -297,19 +315,17 @@ class DepthStreamCorrector:
         if depth_mm.shape != intrinsics.shape:
             raise FrameRejected("size_mismatch", f"images are {_wxh(depth_mm.shape)} but "
                                 f"CameraInfo says {_wxh(intrinsics.shape)}")
-        try:
-            rows, cols = intrinsics.crop_window(self.crop_width, self.crop_height)
-        except InputError as err:
-            raise FrameRejected("size_mismatch", f"the model's {self.crop_width}x"
-                                f"{self.crop_height} window does not fit: {err}") from err
-        crop_intrinsics = intrinsics.crop(self.crop_width, self.crop_height)
+        height = min(self.crop_height, depth_mm.shape[0])
+        width = min(self.crop_width, depth_mm.shape[1])
+        rows, cols = intrinsics.crop_window(width, height)
+        crop_intrinsics = intrinsics.crop(width, height)
         depth = depth_mm[rows, cols].astype(np.float32)
         amp = amplitude[rows, cols].astype(np.float32)
         measured = np.isfinite(depth) & (depth > 0)
         valid = measured & np.isfinite(amp)
         if not valid.any():
             raise FrameRejected("no_valid_pixel", f"no valid pixel in the central "
-                                f"{self.crop_width}x{self.crop_height} window (all depth "
+                                f"{width}x{height} window (all depth "
                                 "NaN, inf or 0, or amplitude not finite)")
         range_mm = (crop_intrinsics.z_to_radial(depth) if self.input_convention == "z"
                     else depth)
@@ -317,7 +333,8 @@ class DepthStreamCorrector:
             if torch.get_num_threads() != self.threads:
                 torch.set_num_threads(self.threads)
             numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
-        result = correct(self.model, range_mm, amp, device=self.device, geodesic=self.geodesic)
+        result = correct(self._window_model(height, width), range_mm, amp, device=self.device,
+                         geodesic=self.geodesic)
         out, sigma = result.range_mm, result.sigma_mm
         if self.input_convention == "z":
             out = crop_intrinsics.radial_to_z(out)

@@ -42,14 +42,14 @@ from __future__ import annotations
 import os
 import threading
 import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 import torch
 
 from ..calibration.intrinsic import IntrinsicCalibration, valid_measurement
-from ..errors import InputError
+from ..errors import CalibrationError, InputError
 from ..thread_pools import shared_pool
 from ..validation import check_array
 from .encoding import EncodingConfig, encode_rows, frame_planes, plane_constants
@@ -243,6 +243,25 @@ def correct(
     if single:
         result = CorrectionResult(*(x[0] for x in fields))
     return result
+
+
+def central_window(model: CorrectionModel | FCNCorrectionModel, width: int, height: int
+                   ) -> CorrectionModel | FCNCorrectionModel:
+    """The same model (either kind) on the central ``width`` x ``height`` window of its pixels:
+    its calibration cut to that window (:meth:`.IntrinsicCalibration.central`), the networks
+    shared. A full-sensor model corrects the paper's 180x140 crop this way.
+
+    Raises:
+        InputError: the window does not fit in the model's frame.
+    """
+    if (height, width) == model.shape:
+        return model
+    try:
+        calibration = model.calibration.central(width, height)
+    except CalibrationError as err:
+        raise InputError(str(err)) from err
+    return replace(model, calibration=calibration,
+                   metadata={**model.metadata, "central_window": [width, height]})
 
 
 def require_patch_kind(model: object, what: str) -> None:

@@ -100,6 +100,12 @@ PARAMETERS = (
     P("input_depth", 5, "Alias: default history depth of the three input subscriptions "
       "(sensor-data QoS: 5); qos_overrides.<topic>.subscription.depth overrides it per "
       "topic." + _QOS_READ_ONLY, min_value=1, max_value=1000, read_only=True),
+    P("crop_width", 0, "Width of the processed central window of each frame, pixels; 0 = the "
+      "weights' whole frame (the shipped weights: the full 320x240 sensor). The paper's "
+      "crop is 180 x 140. A frame smaller than the window is processed whole.",
+      min_value=0, max_value=4096),
+    P("crop_height", 0, "Height of the processed central window, pixels; 0 = the weights' "
+      "whole frame.", min_value=0, max_value=4096),
     P("threads", 1, "CPU threads for the networks (torch) and the geodesic filter (numba); "
       "0 = the libraries' default, one per core. One keeps 30 Hz at 180x140 on a 2-core "
       "machine and leaves the other cores to the rest of the robot's software.",
@@ -131,7 +137,8 @@ PATCH_ONLY_PARAMETERS = ("edge_low", "edge_high", "geodesic_k", "geodesic_sigma"
 # Parameters whose change builds a new correction before it is accepted; the first two load
 # the weights file again (a new model, warmed up on the device before the worker sees it).
 RELOAD_PARAMETERS = ("weights_path", "device")
-REBUILD_PARAMETERS = (*RELOAD_PARAMETERS, "input_convention", "threads", "edge_low",
+REBUILD_PARAMETERS = (*RELOAD_PARAMETERS, "input_convention", "crop_width", "crop_height",
+                      "threads", "edge_low",
                       "edge_high", "geodesic_k", "geodesic_sigma")
 
 # Topic names, relative like image_pipeline's: users move them with namespaces
@@ -624,9 +631,11 @@ def _stream_for(model: CorrectionModel | FCNCorrectionModel, values: Mapping[str
     """
     geodesic = (None if isinstance(model, FCNCorrectionModel)
                 else effective_geodesic(model.geodesic, values))
+    height, width = model.shape
+    crop = (values["crop_width"] or width, values["crop_height"] or height)
     return DepthStreamCorrector(model, input_convention=values["input_convention"],
                                 device=values["device"], threads=values["threads"],
-                                geodesic=geodesic)
+                                geodesic=geodesic, crop=crop)
 
 
 def ignored_parameters(stream: DepthStreamCorrector, values: Mapping[str, Any]
