@@ -1,5 +1,6 @@
 """``tof-mpd calibrate install``: a new intrinsic calibration in a weights file, the networks
-kept; the installed full frame's central window is the crop model it came from."""
+kept; the installed full frame's central window is the crop model it came from; evaluate runs
+full-frame weights on smaller frames through that window."""
 
 from __future__ import annotations
 
@@ -11,11 +12,14 @@ import pytest
 import torch
 
 from tof_mpd_ros.calibration import IntrinsicCalibration, save_calibration
+from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.cli.main import main
 from tof_mpd_ros.correction.fcn import FCNCorrectionModel
 from tof_mpd_ros.correction.pipeline import CorrectionModel, central_window, correct
 from tof_mpd_ros.correction.weights import load_weights, save_weights
 from tof_mpd_ros.errors import InputError
+from tof_mpd_ros.frame import ToFFrame
+from tof_mpd_ros.recordings.npz import save_npz
 
 
 def _calibration(height: int, width: int, seed: int) -> IntrinsicCalibration:
@@ -61,3 +65,34 @@ def test_a_window_larger_than_the_model_is_refused() -> None:
     with pytest.raises(InputError, match="does not fit"):
         central_window(model, 20, 14)
     assert central_window(model, 18, 14) is model
+
+
+@pytest.mark.parametrize("kind", ["patch", "fcn"])
+def test_evaluate_with_full_frame_weights_scores_smaller_frames_on_their_central_window(
+        kind: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Full-sensor weights (the shipped ones) on recordings of the paper's crop: evaluate runs
+    the central window of the weights, as the node and `correct` do."""
+    full = _calibration(24, 32, seed=4)
+    build = CorrectionModel if kind == "patch" else FCNCorrectionModel
+    save_weights(tmp_path / "full.npz", build.untrained(full, seed=1))
+    rng = np.random.default_rng(5)
+    frames = []
+    for i in range(2):
+        ref = rng.uniform(300, 400, (14, 18)).astype(np.float32)
+        frames.append(ToFFrame(ref + rng.normal(0, 2, ref.shape).astype(np.float32),
+                               rng.uniform(100, 900, ref.shape).astype(np.float32),
+                               Intrinsics.from_fov(18, 14, 60.0), reference_mm=ref,
+                               stamp_ns=i))
+    save_npz(tmp_path / "small.npz", frames)
+    assert main(["evaluate", str(tmp_path / "small.npz"), "--weights", str(tmp_path / "full.npz"),
+                 "-o", str(tmp_path / "eval")]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["n_frames"] == 2 and summary["model_kind"] == kind
+    # frames larger than the weights' frame still do not fit
+    big = [ToFFrame(np.full((30, 40), 350.0, np.float32), np.full((30, 40), 500.0, np.float32),
+                    Intrinsics.from_fov(40, 30, 60.0), reference_mm=np.full((30, 40), 350.0,
+                                                                            np.float32))]
+    save_npz(tmp_path / "big.npz", big)
+    assert main(["evaluate", str(tmp_path / "big.npz"), "--weights", str(tmp_path / "full.npz"),
+                 "-o", str(tmp_path / "eval_big")]) == 2
+    assert "40x30" in capsys.readouterr().err

@@ -55,7 +55,7 @@ def run_benchmark_command(args: argparse.Namespace) -> int:
     from ..evaluation.benchmark import run_benchmark as run
     from ..evaluation.report import write_benchmark_report
     from ..recordings import iter_frames
-    from .correct import load_model
+    from .correct import fit_to_frames, load_model
 
     model = load_model(args.weights)
     grids = default_grids(model, quick=args.quick)
@@ -76,6 +76,8 @@ def run_benchmark_command(args: argparse.Namespace) -> int:
             train.append(frame)
             sources.append(i)
     test = (f for path in args.test for f in iter_frames(path))
+    if train:
+        model = fit_to_frames(model, train[0].range_mm.shape)
     result = run(model, train, test, config, train_sources=sources,
                  on_stage=lambda msg: print(f"==> {msg}", flush=True))
     write_benchmark_report(result, args.output, extra={

@@ -45,6 +45,18 @@ def load_model(path: Path | None):
     return load_weights(path if path is not None else default_weights_path())
 
 
+def fit_to_frames(model, frame_shape: tuple[int, int]):
+    """``model`` on the central window of ``frame_shape`` (H, W) when the frames are smaller
+    than its frame (full-sensor weights on 180x140 recordings, as the node does); unchanged
+    otherwise, and a size that does not fit is reported where the frames are corrected."""
+    from ..correction.pipeline import central_window
+
+    (h, w), (height, width) = frame_shape, model.shape
+    if (h, w) != (height, width) and h <= height and w <= width:
+        return central_window(model, w, h)
+    return model
+
+
 def run_correct(args: argparse.Namespace) -> int:
     from ..recordings import is_npz, save_npz, write_frames
 

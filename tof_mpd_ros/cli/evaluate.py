@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 from pathlib import Path
 
@@ -29,10 +30,14 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from ..evaluation.components import evaluate_model
     from ..evaluation.report import write_component_report
     from ..recordings import iter_frames
-    from .correct import load_model
+    from .correct import fit_to_frames, load_model
 
     model = load_model(args.weights)
     frames = (f for path in args.recordings for f in iter_frames(path))
+    first = next(frames, None)
+    if first is not None:
+        model = fit_to_frames(model, first.range_mm.shape)
+        frames = itertools.chain([first], frames)
     evaluation = evaluate_model(model, frames)
     write_component_report(evaluation, args.output,
                            extra={"recordings": [str(p) for p in args.recordings],
