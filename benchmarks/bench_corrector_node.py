@@ -2,26 +2,29 @@
 
 Three processes on loopback, in their own ROS domain (``--domain-id``, default 91):
 
-* a publisher (this script with ``--role publisher``) sends a 180x140 depth (32FC1 z-depth, m)
-  + amplitude (32FC1) + CameraInfo triple at the rate, every triple stamped just before it is
-  published, from a paced loop;
+* a publisher (this script with ``--role publisher``) sends a depth (32FC1 z-depth, m) +
+  amplitude (32FC1) + CameraInfo triple of ``--frame`` (180x140 by default; 320x240 is the
+  whole DS325-like sensor) at the rate, every triple stamped just before it is published, from
+  a paced loop;
 * the ``corrector`` node executable with its default parameters (``queue_size`` 2, one CPU
-  thread) and an untrained 180x140 model (``--weights`` to use a trained file: the per-frame
-  cost does not depend on the weights' values; ``--window 32x24`` processes a small central
-  window of the same frames, to see what the node itself sustains);
+  thread) and an untrained model of ``--kind`` (patch or fcn) covering ``--window`` (default:
+  the frame; ``--weights`` to use a trained file: the per-frame cost does not depend on the
+  weights' values; ``--window 32x24`` processes a small central window of the same frames, to
+  see what the node itself sustains);
 * the listener (this process) receives the corrected depth and ``/diagnostics``.
 
 End-to-end latency = listener receive time - the input's header stamp (one host clock): it
 includes both transports, pairing, queueing and the correction. Drops = frames sent in the
 measured window without a corrected output; the node's own counters (``dropped_<reason>``,
 ``received_depth``) split them into drops in the node and losses in transport. The input frame is
-a synthetic table-top (plane, box, cylinder; 180x140, DS325 optics) with amplitude falloff and
-noise; the in-process ``DepthStreamCorrector.correct`` time of the same frame is printed beside
-the node figures. The node is restarted for each rate.
+a synthetic table-top (plane, box, cylinder, placed relative to the frame; DS325 optics) with
+amplitude falloff and noise; the in-process ``DepthStreamCorrector.correct`` time of the same
+frame is printed beside the node figures. The node is restarted for each rate.
 
 Prints the machine (CPU model, cores, load average) and a side-by-side table; ``--json`` writes
 the same numbers. Usage: ``python benchmarks/bench_corrector_node.py [--seconds 20]
-[--rates 30 60] [--window 180x140] [--json out.json]``. Takes ~2x(seconds + 15) s.
+[--rates 30 60] [--frame 320x240] [--kind fcn] [--window 180x140] [--json out.json]``. Takes
+~2x(seconds + 15) s.
 """
 
 from __future__ import annotations
@@ -41,24 +44,29 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # run from a checkout without installing
     sys.path.insert(0, str(REPO))
-CROP = (140, 180)  # (H, W): the paper's crop, which is also the published frame here
 OUTPUT = "/tof/depth_corrected/image"
 
 
 
-def synthetic_frame(seed: int = 0) -> tuple[np.ndarray, np.ndarray, object]:
+def synthetic_frame(frame: tuple[int, int] = (180, 140), seed: int = 0
+                    ) -> tuple[np.ndarray, np.ndarray, object]:
     """A table-top seen from 300 mm: plane + box + cylinder, with amplitude falloff and noise.
 
-    Returns:
-        (depth_m, amplitude, intrinsics): (140, 180) float32 z-depth in metres, (140, 180)
-        float32 amplitude, and the crop's :class:`~tof_mpd_ros.camera.Intrinsics`.
-    """
-    from tof_mpd_ros.camera import PAPER_CROP, Intrinsics
+    Args:
+        frame: (width, height) of the central window of the DS325-like sensor published.
 
-    k = Intrinsics.ds325().crop(*PAPER_CROP)
+    Returns:
+        (depth_m, amplitude, intrinsics): (H, W) float32 z-depth in metres, (H, W) float32
+        amplitude, and the window's :class:`~tof_mpd_ros.camera.Intrinsics`.
+    """
+    from tof_mpd_ros.camera import Intrinsics
+
+    k = Intrinsics.ds325().crop(*frame)
     rng = np.random.default_rng(seed)
     v, u = np.mgrid[0:k.height, 0:k.width].astype(np.float64)
-    z = 300.0 + 0.15 * (v - k.cy)                                  # tilted table, mm
+    # objects placed as in the 180x140 frame, relative to its centre
+    u, v = u - (k.width - 180) / 2, v - (k.height - 140) / 2
+    z = 300.0 + 0.15 * (v - 69.5)                                  # tilted table, mm
     box = (np.abs(u - 60) < 25) & (np.abs(v - 70) < 30)
     z[box] -= 120.0
     cyl = (u - 125) ** 2 / 20.0 ** 2 + (v - 60) ** 2 / 45.0 ** 2 < 1
@@ -79,7 +87,7 @@ def ros_env(domain_id: int, log_dir: str) -> dict[str, str]:
 
 
 # -- the publisher process --------------------------------------------------------------------
-def run_publisher(rate: float, seconds: float, warmup_s: float) -> None:
+def run_publisher(rate: float, seconds: float, warmup_s: float, frame: tuple[int, int]) -> None:
     """Paced publishing: warm-up frames at 2 Hz, then ``seconds`` at ``rate``; prints JSON."""
     import rclpy
     from rclpy.qos import qos_profile_sensor_data
@@ -87,7 +95,7 @@ def run_publisher(rate: float, seconds: float, warmup_s: float) -> None:
 
     from tof_mpd_ros.nodes.ros_messages import camera_info_message, image_message
 
-    depth_m, amplitude, k = synthetic_frame()
+    depth_m, amplitude, k = synthetic_frame(frame)
     rclpy.init()
     node = rclpy.create_node("bench_publisher")
     qos = qos_profile_sensor_data
@@ -179,7 +187,8 @@ def measure(rate: float, args: argparse.Namespace, weights: Path, log_dir: str) 
             raise SystemExit(f"the corrector did not start:\n{Path(log.name).read_text()}")
         publisher = subprocess.Popen(
             [sys.executable, __file__, "--role", "publisher", "--rate", str(rate),
-             "--seconds", str(args.seconds)], env=env, stdout=subprocess.PIPE, text=True)
+             "--seconds", str(args.seconds), "--frame", args.frame], env=env,
+            stdout=subprocess.PIPE, text=True)
         while publisher.poll() is None:
             spin(0.2)
         report = json.loads(publisher.stdout.read().strip().splitlines()[-1])
@@ -221,9 +230,13 @@ def main() -> None:
     parser.add_argument("--domain-id", type=int, default=91)
     parser.add_argument("--weights", type=Path, help="weights file (default: untrained "
                         "model of --window)")
-    parser.add_argument("--window", default="180x140", help="WxH processed by the default "
-                        "untrained model (the published frame stays 180x140): a small window "
-                        "shows what the node itself sustains")
+    parser.add_argument("--frame", default="180x140", help="WxH of the published frames (the "
+                        "central window of the 320x240 sensor; default the paper's 180x140)")
+    parser.add_argument("--kind", choices=("patch", "fcn"), default="patch",
+                        help="kind of the default untrained model")
+    parser.add_argument("--window", help="WxH processed by the default untrained model "
+                        "(default: the frame): a small window shows what the node itself "
+                        "sustains")
     parser.add_argument("--threads", type=int, default=1, help="the node's threads parameter "
                         "(default 1, the node's default)")
     parser.add_argument("--json", help="also write the numbers to this JSON file")
@@ -231,8 +244,9 @@ def main() -> None:
                         help=argparse.SUPPRESS)
     parser.add_argument("--rate", type=float, default=30.0, help=argparse.SUPPRESS)
     args = parser.parse_args()
+    frame = tuple(int(x) for x in args.frame.lower().split("x"))
     if args.role == "publisher":
-        run_publisher(args.rate, args.seconds, warmup_s=3.0)
+        run_publisher(args.rate, args.seconds, warmup_s=3.0, frame=frame)
         return
 
     os.environ.update(ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
@@ -243,17 +257,19 @@ def main() -> None:
 
     from tof_mpd_ros.calibration import IntrinsicCalibration
     from tof_mpd_ros.correction.depth_stream import DepthStreamCorrector
+    from tof_mpd_ros.correction.fcn import FCNCorrectionModel
     from tof_mpd_ros.correction.pipeline import CorrectionModel
     from tof_mpd_ros.correction.weights import load_weights, save_weights
     from tof_mpd_ros.machine import cpu_model
 
     weights = args.weights
     if weights is None:
-        win_w, win_h = (int(x) for x in args.window.lower().split("x"))
-        weights = save_weights(Path(log_dir) / "untrained.npz", CorrectionModel.untrained(
+        win_w, win_h = (int(x) for x in (args.window or args.frame).lower().split("x"))
+        build = CorrectionModel if args.kind == "patch" else FCNCorrectionModel
+        weights = save_weights(Path(log_dir) / "untrained.npz", build.untrained(
             IntrinsicCalibration.identity(win_h, win_w)))
     # The same frame corrected in this process, with the node's thread count.
-    depth_m, amplitude, k = synthetic_frame()
+    depth_m, amplitude, k = synthetic_frame(frame)
     model = load_weights(weights)
     stream = DepthStreamCorrector(model, threads=args.threads)
     times = []
@@ -271,8 +287,10 @@ def main() -> None:
 
     print(f"machine: {machine['cpu']}, {machine['cores']} cores, load average "
           f"{machine['load_average_1_5_15']} before / {machine['load_average_after']} after")
-    print(f"frame: {CROP[1]}x{CROP[0]} 32FC1, processed window {model.shape[1]}x"
-          f"{model.shape[0]}; in-process DepthStreamCorrector.correct ({args.threads} "
+    window = stream.crop_width, stream.crop_height
+    window = (min(window[0], frame[0]), min(window[1], frame[1]))
+    print(f"frame: {frame[0]}x{frame[1]} 32FC1, {model.kind} kind, processed window "
+          f"{window[0]}x{window[1]}; in-process DepthStreamCorrector.correct ({args.threads} "
           f"thread(s)): median "
           f"{offline_ms:.1f} ms")
     rows = [("input rate (Hz)", "rate_hz", "{:g}"), ("frames sent", "sent", "{}"),
@@ -294,7 +312,8 @@ def main() -> None:
         print(f"{label:<28}" + "".join(f"{c:>{width}}" for c in cells))
     if args.json:
         Path(args.json).write_text(json.dumps(
-            {"machine": machine, "window": list(model.shape[::-1]),
+            {"machine": machine, "frame": list(frame), "kind": model.kind,
+             "window": list(window),
              "offline_correct_ms": offline_ms, "results": results}, indent=2))
 
 
