@@ -15,7 +15,12 @@ from tof_mpd_ros.calibration import IntrinsicCalibration, save_calibration
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.cli.main import main
 from tof_mpd_ros.correction.fcn import FCNCorrectionModel
-from tof_mpd_ros.correction.pipeline import CorrectionModel, central_window, correct
+from tof_mpd_ros.correction.pipeline import (
+    CorrectionModel,
+    central_window,
+    correct,
+    processed_window,
+)
 from tof_mpd_ros.correction.weights import load_weights, save_weights
 from tof_mpd_ros.errors import InputError
 from tof_mpd_ros.frame import ToFFrame
@@ -96,3 +101,10 @@ def test_evaluate_with_full_frame_weights_scores_smaller_frames_on_their_central
     assert main(["evaluate", str(tmp_path / "big.npz"), "--weights", str(tmp_path / "full.npz"),
                  "-o", str(tmp_path / "eval_big")]) == 2
     assert "40x30" in capsys.readouterr().err
+
+
+def test_processed_window_is_the_crop_or_the_model_clipped_to_the_frame() -> None:
+    assert processed_window((240, 320), (512, 512)) == (240, 320)            # cropped to it
+    assert processed_window((240, 320), (140, 180)) == (140, 180)            # corrected whole
+    assert processed_window((240, 320), (512, 512), (180, 140)) == (140, 180)
+    assert processed_window((240, 320), (100, 512), (180, 140)) == (100, 180)

@@ -49,11 +49,11 @@ def fit_to_frames(model, frame_shape: tuple[int, int]):
     """``model`` on the central window of ``frame_shape`` (H, W) when the frames are smaller
     than its frame (full-sensor weights on 180x140 recordings, as the node does); unchanged
     otherwise, and a size that does not fit is reported where the frames are corrected."""
-    from ..correction.pipeline import central_window
+    from ..correction.pipeline import central_window, processed_window
 
-    (h, w), (height, width) = frame_shape, model.shape
-    if (h, w) != (height, width) and h <= height and w <= width:
-        return central_window(model, w, h)
+    window = processed_window(model.shape, frame_shape)
+    if window == tuple(frame_shape):  # smaller or equal: corrected whole on the central window
+        return central_window(model, window[1], window[0])
     return model
 
 
@@ -101,15 +101,14 @@ def _corrected_frames(args: argparse.Namespace, model, seconds: list[float],
 
     from tqdm import tqdm
 
-    from ..correction.pipeline import central_window, correct
+    from ..correction.pipeline import central_window, correct, processed_window
     from ..recordings import count_frames, iter_frames
 
-    width, height = args.crop or model.shape[::-1]
     windows: dict = {}
     for frame in tqdm(iter_frames(args.input), total=count_frames(args.input),
                       desc="correcting", unit="frame"):
         k = frame.intrinsics
-        h, w = min(height, k.height), min(width, k.width)  # the node's central window
+        h, w = processed_window(model.shape, k.shape, args.crop)  # the node's central window
         if k.shape != (h, w):
             cropped_from.add(k.shape)
             frame = frame.cropped(w, h)

@@ -37,7 +37,13 @@ from ..validation import check_array
 from . import geodesic
 from .edges import edge_map_from_best
 from .fcn import FCNCorrectionModel
-from .pipeline import CorrectionModel, GeodesicParams, central_window, correct
+from .pipeline import (
+    CorrectionModel,
+    GeodesicParams,
+    central_window,
+    correct,
+    processed_window,
+)
 
 CONVENTIONS = ("z", "radial")
 
@@ -315,8 +321,8 @@ class DepthStreamCorrector:
         if depth_mm.shape != intrinsics.shape:
             raise FrameRejected("size_mismatch", f"images are {_wxh(depth_mm.shape)} but "
                                 f"CameraInfo says {_wxh(intrinsics.shape)}")
-        height = min(self.crop_height, depth_mm.shape[0])
-        width = min(self.crop_width, depth_mm.shape[1])
+        height, width = processed_window(self.model.shape, depth_mm.shape,
+                                         (self.crop_width, self.crop_height))
         rows, cols = intrinsics.crop_window(width, height)
         crop_intrinsics = intrinsics.crop(width, height)
         depth = depth_mm[rows, cols].astype(np.float32)

@@ -245,6 +245,17 @@ def correct(
     return result
 
 
+def processed_window(model_shape: tuple[int, int], frame_shape: tuple[int, int],
+                     crop: tuple[int, int] | None = None) -> tuple[int, int]:
+    """(height, width) of the central window of a frame of ``frame_shape`` (H, W) that a model
+    of ``model_shape`` (H, W) corrects: ``crop`` (width, height) if given, else the model's
+    frame, and never more than the frame. The one rule of the node, ``tof-mpd correct``,
+    ``evaluate`` and ``benchmark``: a larger frame is cropped to it, a smaller one is corrected
+    whole on the model's central window (:func:`central_window`)."""
+    width, height = crop if crop is not None else (model_shape[1], model_shape[0])
+    return min(height, frame_shape[0]), min(width, frame_shape[1])
+
+
 def central_window(model: CorrectionModel | FCNCorrectionModel, width: int, height: int
                    ) -> CorrectionModel | FCNCorrectionModel:
     """The same model (either kind) on the central ``width`` x ``height`` window of its pixels:
