@@ -297,7 +297,7 @@ class FCNCorrectionModel:
 
     calibration: IntrinsicCalibration
     net: ResidualFCN
-    max_sigma_mm: float = 10.0
+    max_sigma_mm: float = 20.0
     metadata: dict[str, Any] = field(default_factory=dict)
 
     kind = "fcn"
@@ -318,7 +318,7 @@ class FCNCorrectionModel:
     @classmethod
     def untrained(cls, calibration: IntrinsicCalibration,
                   architecture: FCNArchitecture | None = None, *, seed: int = 0,
-                  max_sigma_mm: float = 10.0) -> FCNCorrectionModel:
+                  max_sigma_mm: float = 20.0) -> FCNCorrectionModel:
         """A model with a freshly initialised (seeded) network."""
         net = ResidualFCN(architecture, generator=torch.Generator().manual_seed(seed))
         return cls(calibration, net, max_sigma_mm)

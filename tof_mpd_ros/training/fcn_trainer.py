@@ -133,7 +133,7 @@ class FCNTrainConfig:
     weight_decay: float = 0.0
     val_fraction: float = 0.1
     target_clip_mm: float = 100.0
-    max_sigma_mm: float = 10.0
+    max_sigma_mm: float = 20.0
     architecture: FCNArchitecture = field(default_factory=FCNArchitecture)
     num_threads: int | None = None
 
