@@ -94,3 +94,18 @@ def test_patch_kind_confidence_is_unchanged_and_geodesic_knobs_refuse_fcn(
     stream = DepthStreamCorrector(model, threads=1)
     assert stream.geodesic is None and stream.kind == "fcn"
     assert stream.warm_up() >= 0.0
+
+
+def test_bfloat16_stream_is_correct_in_bfloat16(model: FCNCorrectionModel) -> None:
+    depth, amplitude = _frame()
+    out = DepthStreamCorrector(model, input_convention="radial", threads=1,
+                               precision="bfloat16").correct(depth, amplitude, K)
+    bf16 = correct(model, depth[CROP], amplitude[CROP], precision="bfloat16")
+    f32 = correct(model, depth[CROP], amplitude[CROP])
+    np.testing.assert_allclose(out.sigma_mm, bf16.sigma_mm, rtol=1e-6, equal_nan=True)
+    # reduced precision: not float32's bits, but within a millimetre of them here
+    ok = np.isfinite(f32.range_f_mm)
+    assert not np.array_equal(bf16.sigma_mm[ok], f32.sigma_mm[ok])
+    assert np.nanmax(np.abs(bf16.range_f_mm - f32.range_f_mm)) < 1.0
+    with pytest.raises(InputError, match="precision"):
+        DepthStreamCorrector(model, precision="int8")

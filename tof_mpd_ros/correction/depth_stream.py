@@ -38,6 +38,7 @@ from . import geodesic
 from .edges import edge_map_from_best
 from .fcn import FCNCorrectionModel
 from .pipeline import (
+    PRECISIONS,
     CorrectionModel,
     GeodesicParams,
     central_window,
@@ -230,22 +231,27 @@ class DepthStreamCorrector:
             weights file's); None keeps the model's. Patch kind only (an fcn model has none:
             its ``geodesic`` is None).
         crop: (width, height) of the processed central window; None = the model's frame.
+        precision: ``"float32"`` or ``"bfloat16"`` (the networks' arithmetic,
+            :func:`~.pipeline.correct`).
 
     Raises:
-        InputError: an unknown convention, ``threads`` < 0, ``geodesic`` for an fcn model, or
-            a ``crop`` larger than the model's frame.
+        InputError: an unknown convention or precision, ``threads`` < 0, ``geodesic`` for an
+            fcn model, or a ``crop`` larger than the model's frame.
     """
 
     def __init__(self, model: CorrectionModel | FCNCorrectionModel, *,
                  input_convention: str = "z", device: str = "cpu", threads: int = 0,
                  geodesic: GeodesicParams | None = None,
-                 crop: tuple[int, int] | None = None) -> None:
+                 crop: tuple[int, int] | None = None, precision: str = "float32") -> None:
         if input_convention not in CONVENTIONS:
             raise InputError(f"input_convention must be one of {CONVENTIONS}, "
                              f"got {input_convention!r}")
         if threads < 0:
             raise InputError(f"threads must be >= 0, got {threads}")
         self.threads = threads
+        if precision not in PRECISIONS:
+            raise InputError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+        self.precision = precision
         self.model = model
         self.kind = model.kind
         if isinstance(model, FCNCorrectionModel):
@@ -340,7 +346,7 @@ class DepthStreamCorrector:
                 torch.set_num_threads(self.threads)
             numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
         result = correct(self._window_model(height, width), range_mm, amp, device=self.device,
-                         geodesic=self.geodesic)
+                         geodesic=self.geodesic, precision=self.precision)
         out, sigma = result.range_mm, result.sigma_mm
         if self.input_convention == "z":
             out = crop_intrinsics.radial_to_z(out)

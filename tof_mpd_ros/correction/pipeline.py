@@ -164,6 +164,10 @@ class CorrectionResult:
     sigma_mm: np.ndarray | None = None
 
 
+#: the networks' arithmetic :func:`correct` offers
+PRECISIONS = ("float32", "bfloat16")
+
+
 def check_frame_pair(model_shape: tuple[int, int], range_mm: object, amplitude: object
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Validate a (H, W) or (B, H, W) range/amplitude pair against the model's crop.
@@ -222,7 +226,7 @@ def correct(
         InputError: see :func:`check_frame_pair`; an unknown ``precision``; ``threads`` < 1.
     """
     r, a = check_frame_pair(model.shape, range_mm, amplitude)
-    if precision not in ("float32", "bfloat16"):
+    if precision not in PRECISIONS:
         raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
     if isinstance(model, FCNCorrectionModel):
         return _correct_fcn(model, r, a, device, use_range_net, precision)
