@@ -152,7 +152,8 @@ def measure(rate: float, args: argparse.Namespace, weights: Path, log_dir: str) 
     corrector = subprocess.Popen(
         [sys.executable, "-m", "tof_mpd_ros.nodes.corrector", "--ros-args",
          "-p", f"weights_path:={weights}", "-p", "diagnostics_period_s:=0.5",
-         "-p", f"threads:={args.threads}", "-r", "__ns:=/tof"],  # its topics are relative
+         "-p", f"threads:={args.threads}", "-p", f"precision:={args.precision}",
+         "-r", "__ns:=/tof"],  # its topics are relative
         env=env, stdout=log, stderr=subprocess.STDOUT)
     context = rclpy.Context()
     rclpy.init(context=context, domain_id=args.domain_id)
@@ -239,6 +240,8 @@ def main() -> None:
                         "sustains")
     parser.add_argument("--threads", type=int, default=1, help="the node's threads parameter "
                         "(default 1, the node's default)")
+    parser.add_argument("--precision", choices=("float32", "bfloat16"), default="float32",
+                        help="the node's precision parameter")
     parser.add_argument("--json", help="also write the numbers to this JSON file")
     parser.add_argument("--role", choices=("listener", "publisher"), default="listener",
                         help=argparse.SUPPRESS)
@@ -271,7 +274,7 @@ def main() -> None:
     # The same frame corrected in this process, with the node's thread count.
     depth_m, amplitude, k = synthetic_frame(frame)
     model = load_weights(weights)
-    stream = DepthStreamCorrector(model, threads=args.threads)
+    stream = DepthStreamCorrector(model, threads=args.threads, precision=args.precision)
     times = []
     for _ in range(12):
         t0 = time.perf_counter()
@@ -289,7 +292,7 @@ def main() -> None:
           f"{machine['load_average_1_5_15']} before / {machine['load_average_after']} after")
     window = stream.crop_width, stream.crop_height
     window = (min(window[0], frame[0]), min(window[1], frame[1]))
-    print(f"frame: {frame[0]}x{frame[1]} 32FC1, {model.kind} kind, processed window "
+    print(f"frame: {frame[0]}x{frame[1]} 32FC1, {model.kind} kind, {args.precision}, window "
           f"{window[0]}x{window[1]}; in-process DepthStreamCorrector.correct ({args.threads} "
           f"thread(s)): median "
           f"{offline_ms:.1f} ms")
