@@ -61,6 +61,9 @@ class GroupLevels:
         se_mm: per group, the level's standard error.
         correction_mm: per group, the mean correction the candidate predicts.
         pixels: held-out pixels where the correction is large (all groups').
+        z2_before, z2_after: over those pixels, the mean squared residual in units of the
+            model's σ (clipped at 6σ) before and after the candidate: per pixel, not averaged
+            over a group, so a correction that varies within a group (across an edge) counts.
     """
 
     before_mm: tuple[float, ...]
@@ -68,6 +71,8 @@ class GroupLevels:
     se_mm: tuple[float, ...]
     correction_mm: tuple[float, ...]
     pixels: int
+    z2_before: float = float("nan")
+    z2_after: float = float("nan")
 
     @property
     def chi2_before(self) -> float:
@@ -83,6 +88,12 @@ class GroupLevels:
         return self.chi2_after / self.chi2_before if self.chi2_before > 0 else 1.0
 
     @property
+    def excess_left(self) -> float:
+        """Share of the pixels' excess over the noise (mean z² − 1) the candidate leaves."""
+        excess = self.z2_before - 1.0
+        return (self.z2_after - 1.0) / excess if excess > 0 else 1.0
+
+    @property
     def explained(self) -> bool:
         """Whether the candidate explains the residual where its correction is large."""
         if len(self.se_mm) < MIN_GROUPS:
@@ -96,7 +107,8 @@ class GroupLevels:
                 "chi2_after": round(self.chi2_after, 2),
                 "share_left": round(self.share_left, 3),
                 "mean_abs_correction_mm": round(float(np.mean(np.abs(self.correction_mm))), 3),
-                "explained": self.explained}
+                "z2_before": round(self.z2_before, 3), "z2_after": round(self.z2_after, 3),
+                "excess_left": round(self.excess_left, 3), "explained": self.explained}
 
 
 def large_cut(correction_mm: np.ndarray, share: float = LARGE_SHARE) -> float:
@@ -134,15 +146,31 @@ def group_levels(problem: Problem, config: ToFConfig,
         return None
     cut = large_cut(np.concatenate([c[np.isfinite(c)] for c in corrections]), share)
     rows: list[tuple[float, float, float, float]] = []
-    pixels = 0
+    z2: list[np.ndarray] = []
     for i, c in zip(frames, corrections, strict=True):
         large = np.isfinite(c) & (np.abs(c) >= cut)
-        pixels += int(large.sum())
         rows += _frame_groups(problem, i, config, c, large, (shift_before, shift_after))
+        z2.append(_pixel_z2(problem, i, config, large, (shift_before, shift_after)))
     if not rows:
         return None
     before, after, se, corr = zip(*rows, strict=True)
-    return GroupLevels(before, after, se, corr, pixels)
+    z2_all = np.concatenate(z2, axis=0)
+    return GroupLevels(before, after, se, corr, int(z2_all.shape[0]),
+                       *map(float, np.mean(z2_all, axis=0)))
+
+
+def _pixel_z2(problem: Problem, i: int, config: ToFConfig, large: np.ndarray,
+              shifts: tuple[float, float]) -> np.ndarray:
+    """(N, 2) float64 squared residuals before and after ``config`` in units of the current
+    model's σ (clipped at 6σ: flying pixels must not decide) on frame ``i``'s ``large``
+    pixels where both are predicted."""
+    before = problem.predictors[i].predict(None)
+    after = problem.predictors[i].predict(config)
+    sigma = total_sigma(before.noise_mm, problem.reference_noise_mm)
+    z = np.stack([(problem.real_mm[i] - before.range_mm - shifts[0]) / sigma,
+                  (problem.real_mm[i] - after.range_mm - shifts[1]) / sigma], axis=-1)[large]
+    z = z[np.all(np.isfinite(z), axis=1)]
+    return np.clip(z, -6.0, 6.0) ** 2
 
 
 def _frame_groups(problem: Problem, i: int, config: ToFConfig, correction: np.ndarray,
