@@ -14,17 +14,18 @@ import pytest
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.mismatch import analyse
-from tof_mpd_ros.mismatch.analysis import MIN_SCORE
+from tof_mpd_ros.mismatch.analysis import MIN_SCORE, _Search
 from tof_mpd_ros.mismatch.concentration import (
     CONCENTRATED_EFFECTS,
     MAX_CHI2_LEFT,
     MIN_CHI2_GAIN,
+    RIVAL_LEFT,
     GroupLevels,
     group_ids,
     group_levels,
     large_cut,
 )
-from tof_mpd_ros.mismatch.fit import fit_effect
+from tof_mpd_ros.mismatch.fit import FitResult, fit_effect
 from tof_mpd_ros.sim.tof import ToFConfig
 
 #: a camera 3× noisier than the nominal cell, with 3 mm of amplitude-independent jitter
@@ -48,9 +49,34 @@ def test_group_statistic():
                        400)
     assert part.chi2_before - part.chi2_after >= MIN_CHI2_GAIN
     assert part.share_left > MAX_CHI2_LEFT and not part.explained
+    assert not part.rival
+    # explains too little to be taken, enough to make another candidate's explanation ambiguous
+    between = GroupLevels((3.0, -2.0, 2.5, 1.5), (1.9, -1.3, 1.6, 1.0), se,
+                          (1.1, -0.7, 0.9, 0.5), 400)
+    assert MAX_CHI2_LEFT < between.share_left <= RIVAL_LEFT
+    assert between.rival and not between.explained
     weak = GroupLevels((0.6, -0.4, 0.5, 0.3), (0.0,) * 4, se, (0.6, -0.4, 0.5, 0.3), 400)
     assert weak.chi2_before < MIN_CHI2_GAIN and not weak.explained
     assert not GroupLevels((3.0, 2.0), (0.0, 0.0), (0.5, 0.5), (3.0, 2.0), 100).explained
+
+
+def test_a_concentrated_fit_is_taken_only_when_no_rival_explains_as_well():
+    """Below the per-pixel score a concentrated candidate is taken when it explains where it
+    acts, scores above 0, and no other concentrated candidate of the round also explains
+    its own region (leaves at most RIVAL_LEFT): then the residual is a misfit any of them
+    bends to (the session-11 controls: a halo 0.36 and a misregistration 0.34 on one)."""
+    alone = {"explained": True, "rival": True}
+    search = _Search(None, [], {}, MIN_SCORE, 3.0, None)  # type: ignore[arg-type]
+    search.concentration = {"3:hand_eye": alone,
+                            "3:lens_scatter": {"explained": False, "rival": False},
+                            "2:mixed_pixels": {"explained": True, "rival": True}}
+    fit = FitResult("hand_eye", ToFConfig.nominal(), {}, 6, score=5.0)
+    assert search._by_concentration(fit, 2)
+    assert not search._by_concentration(FitResult("hand_eye", ToFConfig.nominal(), {}, 6,
+                                                  score=-1.0), 2)
+    search.concentration["3:lens_scatter"] = {"explained": False, "rival": True}
+    assert not search._by_concentration(fit, 2)
+    assert MAX_CHI2_LEFT < RIVAL_LEFT
 
 
 def test_groups_split_tiles_by_the_corrections_sign():

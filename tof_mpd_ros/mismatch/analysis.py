@@ -460,10 +460,15 @@ class _Search:
     def _by_concentration(self, r: FitResult, k: int) -> bool:
         """Whether ``r`` (an effect of ``CONCENTRATED_EFFECTS``) explains the held-out residual
         where its correction is large (:mod:`.concentration`: the groups' χ² is the
-        significance test here, in place of the per-pixel score) without making the held-out
-        pixels worse (a positive score)."""
+        significance test here, in place of the per-pixel score), alone among the round's
+        concentrated candidates, without making the held-out pixels worse (a positive
+        score). When a halo, a blur and a misregistration all explain it, it is a misfit any
+        smooth correction bends to, not one effect's signature (issue 13, item 2)."""
         found = self.concentration.get(f"{k + 1}:{r.effect}")
-        return bool(found and found["explained"] and r.score > 0)
+        if not (found and found["explained"] and r.score > 0):
+            return False
+        return not any(v["rival"] for key, v in self.concentration.items()
+                       if key.startswith(f"{k + 1}:") and key != f"{k + 1}:{r.effect}")
 
     def confirm(self, profile: list[str], given: ToFConfig) -> list[str]:
         """The profile effects still significant in the final model: each is put back to its

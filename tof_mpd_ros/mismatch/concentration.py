@@ -42,11 +42,17 @@ MIN_CORRECTION_MM = 0.5
 TILE_PX = 16
 #: a group needs this many pixels (one effective sample is CORRELATION_PX pixels)
 MIN_GROUP_PX = 32
-#: the groups' χ² must gain at least this much (about 5σ of evidence over a few groups)...
-MIN_CHI2_GAIN = 25.0
+#: the groups' χ² must gain at least this much (about 4σ of evidence, as for the frames'
+#: levels)...
+MIN_CHI2_GAIN = 16.0
 #: ...and the candidate must leave at most this share of the groups' χ²: where it acts, it is
 #: most of what the model misses
-MAX_CHI2_LEFT = 0.5
+MAX_CHI2_LEFT = 0.3
+#: another concentrated candidate that gains as much and leaves at most this share of its
+#: own groups' χ² is a rival: the residual is then one any of several corrections of the
+#: same kind bends to (measured on the controls of session 11: a halo, a blur and a
+#: misregistration each leaving 0.1–0.4), not the signature of one of them
+RIVAL_LEFT = 0.5
 #: fewer groups than this say nothing about where a correction acts
 MIN_GROUPS = 3
 #: the scale (px, Gaussian σ) above which a misfit is "diffuse": the signature test compares
@@ -102,10 +108,19 @@ class GroupLevels:
     @property
     def explained(self) -> bool:
         """Whether the candidate explains the residual where its correction is large."""
+        return self._explains(MAX_CHI2_LEFT)
+
+    @property
+    def rival(self) -> bool:
+        """Whether the candidate explains that residual well enough to stand beside another
+        (see ``RIVAL_LEFT``)."""
+        return self._explains(RIVAL_LEFT)
+
+    def _explains(self, max_left: float) -> bool:
         if len(self.se_mm) < MIN_GROUPS:
             return False
         return (self.chi2_before - self.chi2_after >= MIN_CHI2_GAIN
-                and self.share_left <= MAX_CHI2_LEFT)
+                and self.share_left <= max_left)
 
     def as_dict(self) -> dict[str, object]:
         return {"groups": len(self.se_mm), "pixels": self.pixels,
@@ -116,7 +131,7 @@ class GroupLevels:
                 "z2_before": round(self.z2_before, 3), "z2_after": round(self.z2_after, 3),
                 "excess_left": round(self.excess_left, 3),
                 "fine_slope": round(self.fine_slope, 3), "fine_se": round(self.fine_se, 3),
-                "explained": self.explained}
+                "explained": self.explained, "rival": self.rival}
 
 
 def large_cut(correction_mm: np.ndarray, share: float = LARGE_SHARE) -> float:
