@@ -454,8 +454,7 @@ class _Search:
             if r.effect in CONCENTRATED_EFFECTS and r.effect not in boxed and not r.note:
                 levels = group_levels(self.problem, r.config)
                 if levels is not None:
-                    self.concentration[f"{k + 1}:{r.effect}"] = {
-                        **levels.as_dict(), "wide": _wide(self.problem, r.config)}
+                    self.concentration[f"{k + 1}:{r.effect}"] = levels.as_dict()
 
     def _by_concentration(self, r: FitResult, k: int) -> bool:
         """Whether ``r`` (an effect of ``CONCENTRATED_EFFECTS``) explains the held-out residual
@@ -560,12 +559,6 @@ class _Search:
 
     def _rebase(self, config: ToFConfig) -> None:
         self.problem = _rebased(self.problem, config)
-
-
-def _wide(problem: Problem, config: ToFConfig) -> dict[str, Any] | None:
-    """The same measure with a wider region (a quarter of the percentile): evidence only."""
-    levels = group_levels(problem, config, share=0.25)
-    return None if levels is None else levels.as_dict()
 
 
 def _rebased(p: Problem, config: ToFConfig) -> Problem:
