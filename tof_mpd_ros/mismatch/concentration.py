@@ -19,10 +19,10 @@ least ``MIN_CHI2_GAIN`` and leaves at most ``MAX_CHI2_LEFT`` of it.
 
 This alone does not separate an effect from a control's misfit (session 12: on the controls of
 session 11 a halo, a blur or a misregistration fitted to the camera's or the path tracer's
-unmodelled residual left 0.1–0.4 of the groups' χ², as the true effects did). What the true
-effects had and those fits mostly had not is uniqueness: one candidate explains its region and
-no other concentrated candidate explains its own (``RIVAL_LEFT``). The analysis asks both
-(:meth:`.analysis._Search._by_concentration`).
+unmodelled residual left 0.1–0.4 of the groups' χ², as the true effects did). When several
+concentrated corrections explain the residual where they act, it is a misfit they all bend
+to, not one effect's signature; so the analysis also asks that no rival explains its own
+region (``RIVAL_LEFT``, :meth:`.analysis._Search._by_concentration`).
 """
 
 from __future__ import annotations
