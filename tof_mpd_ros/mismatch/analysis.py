@@ -19,6 +19,7 @@ from scipy import stats
 from ..errors import MismatchError
 from ..frame import ToFFrame
 from ..sim.tof import ToFConfig
+from .concentration import CONCENTRATED_EFFECTS, group_levels
 from .data import camera_motion, check_frames, split_frames
 from .features import DESCRIPTORS, all_descriptors, edge_jump_mm
 from .fit import (
@@ -109,6 +110,8 @@ class Analysis:
             sits.
         frame_levels: "round:effect" -> the held-out frames' residual levels before and after
             a candidate of one offset per frame, judged on them (:mod:`.frame_levels`).
+        concentration: "round:effect" -> the held-out residual where a concentrated
+            candidate's correction is large, before and after it (:mod:`.concentration`).
     """
 
     selected: list[str]
@@ -129,6 +132,7 @@ class Analysis:
     profile_words: list[str] = field(default_factory=list)
     unexplained: list[dict[str, Any]] = field(default_factory=list)
     frame_levels: dict[str, dict[str, Any]] = field(default_factory=dict)
+    concentration: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @property
     def parameters(self) -> dict[str, dict[str, float]]:
@@ -149,7 +153,9 @@ class Analysis:
                              "parameters": r.parameters,
                              "evidence": self.evidence.get(f"{k + 1}:{r.effect}", r.note),
                              **({"frame_levels": self.frame_levels[key]}
-                                if (key := f"{k + 1}:{r.effect}") in self.frame_levels else {})})
+                                if (key := f"{k + 1}:{r.effect}") in self.frame_levels else {}),
+                             **({"concentration": self.concentration[key]}
+                                if key in self.concentration else {})})
         return rows
 
 
@@ -281,6 +287,7 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
                                               profile)
     analysis.unexplained = search.unexplained
     analysis.frame_levels = search.frame_levels
+    analysis.concentration = search.concentration
     return analysis
 
 
@@ -332,6 +339,9 @@ class _Search:
     profile_boxes: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
     #: "round:effect" -> the held-out frames' levels of a candidate judged on them
     frame_levels: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: "round:effect" -> where a concentrated candidate's correction is large, the held-out
+    #: residual before and after it
+    concentration: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     def greedy(self, candidates: Sequence[str], limit: int,
                boxes: dict[str, list[tuple[float, float]]] | None = None,
@@ -361,6 +371,7 @@ class _Search:
             for r in results:
                 self.evidence[f"{k + 1}:{r.effect}"] = explain(self.problem, r,
                                                                self.descriptors)
+            self._measure_concentration(results, k, boxed=set(boxes))
             # once a fit is taken, the residual holds that fit's imperfections too
             threshold = (self.min_score if not self.taken
                          else max(self.min_score, MIN_SCORE_LATER))
@@ -388,14 +399,16 @@ class _Search:
         explain, a focused lens's blur) named as physics; ``boxed`` are the profile's fits of
         those windows, which are taken. Below the significance of the per-pixel score, a
         warm-up drift may still be taken on the held-out frames' levels
-        (:meth:`_by_frame_levels`)."""
+        (:meth:`_by_frame_levels`), and an effect that acts on few pixels on the residual where
+        its correction is large (:meth:`_by_concentration`)."""
         past_significant = False
         for r in results:
             if past_significant or not _significant(r, threshold, self.min_t):
                 # ranked by score, none further is significant by it; but an effect of one
-                # offset per frame is also judged on the frames' levels, where it shows
+                # offset per frame is also judged on the frames' levels, and a concentrated
+                # effect where it acts: there its signature shows
                 past_significant = True
-                if not self._by_frame_levels(r, k):
+                if not (self._by_frame_levels(r, k) or self._by_concentration(r, k)):
                     continue
             if self.units_assumed and r.effect not in boxed and within_camera_window(r):
                 param, lo, hi = CAMERA_WINDOWS[r.effect]
@@ -432,6 +445,29 @@ class _Search:
             return False
         self.frame_levels[f"{k + 1}:{r.effect}"] = levels.as_dict()
         return levels.explained and r.score > 0
+
+    def _measure_concentration(self, results: list[FitResult], k: int,
+                               boxed: Collection[str]) -> None:
+        """Keep, for every concentrated candidate of round ``k`` fitted over its whole range,
+        the held-out residual where its correction is large (:mod:`.concentration`)."""
+        for r in results:
+            if r.effect in CONCENTRATED_EFFECTS and r.effect not in boxed and not r.note:
+                levels = group_levels(self.problem, r.config)
+                if levels is not None:
+                    self.concentration[f"{k + 1}:{r.effect}"] = levels.as_dict()
+
+    def _by_concentration(self, r: FitResult, k: int) -> bool:
+        """Whether ``r`` (an effect of ``CONCENTRATED_EFFECTS``) explains the held-out residual
+        where its correction is large (:mod:`.concentration`: the groups' χ² is the
+        significance test here, in place of the per-pixel score), alone among the round's
+        concentrated candidates, without making the held-out pixels worse (a positive
+        score). When a halo, a blur and a misregistration all explain it, it is a misfit any
+        smooth correction bends to, not one effect's signature (issue 13, item 2)."""
+        found = self.concentration.get(f"{k + 1}:{r.effect}")
+        if not (found and found["explained"] and r.score > 0):
+            return False
+        return not any(v["rival"] for key, v in self.concentration.items()
+                       if key.startswith(f"{k + 1}:") and key != f"{k + 1}:{r.effect}")
 
     def confirm(self, profile: list[str], given: ToFConfig) -> list[str]:
         """The profile effects still significant in the final model: each is put back to its
