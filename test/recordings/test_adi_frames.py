@@ -23,7 +23,7 @@ from tof_mpd_ros.correction.depth_stream import DepthStreamCorrector
 from tof_mpd_ros.correction.weights import load_weights
 from tof_mpd_ros.errors import InputError, RecordingError
 from tof_mpd_ros.frame import ToFFrame
-from tof_mpd_ros.recordings import load_npz, save_npz
+from tof_mpd_ros.recordings import load_npz
 from tof_mpd_ros.recordings.adi import adi_intrinsics, adi_modes, read_adi
 
 # The synthetic folder: two modes of a 200 x 160 frame, a tilted plane about 1.5 m away.
