@@ -206,7 +206,9 @@ def kernel_mean_shift(logits: torch.Tensor, range_m: torch.Tensor, valid: torch.
     # The softmax over the gated neighbours, one neighbour at a time on (B, H, W) planes: an
     # unfold to (B, k², H, W) and masked softmax cost ~7x as much on the CPU (measured). The
     # shift by the maximum of all k² logits keeps exp <= 1; the pixel itself (difference 0) is
-    # always a neighbour of a valid pixel, so the sum of weights is positive there.
+    # always a neighbour of a valid pixel, so the sum of weights is positive there (should every
+    # kept logit lie ~87 below an excluded one, the weights underflow and the pixel keeps its
+    # own range: the safe answer).
     top = logits.amax(dim=1)
     num = torch.zeros_like(r_mm)
     den = torch.zeros_like(r_mm)
