@@ -44,6 +44,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # run from a checkout without installing
     sys.path.insert(0, str(REPO))
+from tof_mpd_ros.cli.arguments import window_size  # noqa: E402  (no ROS: safe before rclpy)
+
 OUTPUT = "/tof/depth_corrected/image"
 
 
@@ -188,7 +190,7 @@ def measure(rate: float, args: argparse.Namespace, weights: Path, log_dir: str) 
             raise SystemExit(f"the corrector did not start:\n{Path(log.name).read_text()}")
         publisher = subprocess.Popen(
             [sys.executable, __file__, "--role", "publisher", "--rate", str(rate),
-             "--seconds", str(args.seconds), "--frame", args.frame], env=env,
+             "--seconds", str(args.seconds), "--frame", "{}x{}".format(*args.frame)], env=env,
             stdout=subprocess.PIPE, text=True)
         while publisher.poll() is None:
             spin(0.2)
@@ -231,13 +233,14 @@ def main() -> None:
     parser.add_argument("--domain-id", type=int, default=91)
     parser.add_argument("--weights", type=Path, help="weights file (default: untrained "
                         "model of --window)")
-    parser.add_argument("--frame", default="180x140", help="WxH of the published frames (the "
-                        "central window of the 320x240 sensor; default the paper's 180x140)")
+    parser.add_argument("--frame", type=window_size, default=(180, 140),
+                        help="WxH of the published frames (the central window of the 320x240 "
+                        "sensor; default the paper's 180x140)")
     parser.add_argument("--kind", choices=("patch", "fcn"), default="patch",
                         help="kind of the default untrained model")
-    parser.add_argument("--window", help="WxH processed by the default untrained model "
-                        "(default: the frame): a small window shows what the node itself "
-                        "sustains")
+    parser.add_argument("--window", type=window_size,
+                        help="WxH processed by the default untrained model (default: the "
+                        "frame): a small window shows what the node itself sustains")
     parser.add_argument("--threads", type=int, default=1, help="the node's threads parameter "
                         "(default 1, the node's default)")
     parser.add_argument("--precision", choices=("float32", "bfloat16"), default="float32",
@@ -247,7 +250,7 @@ def main() -> None:
                         help=argparse.SUPPRESS)
     parser.add_argument("--rate", type=float, default=30.0, help=argparse.SUPPRESS)
     args = parser.parse_args()
-    frame = tuple(int(x) for x in args.frame.lower().split("x"))
+    frame = args.frame
     if args.role == "publisher":
         run_publisher(args.rate, args.seconds, warmup_s=3.0, frame=frame)
         return
@@ -267,7 +270,7 @@ def main() -> None:
 
     weights = args.weights
     if weights is None:
-        win_w, win_h = (int(x) for x in (args.window or args.frame).lower().split("x"))
+        win_w, win_h = args.window or args.frame
         build = CorrectionModel if args.kind == "patch" else FCNCorrectionModel
         weights = save_weights(Path(log_dir) / "untrained.npz", build.untrained(
             IntrinsicCalibration.identity(win_h, win_w)))

@@ -4,16 +4,13 @@ falls, rank 0 alone writes the files, and a torchrun launch of the CLI trains th
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
 import torch
 from synthetic_training_frames import synthetic_frames
-from two_ranks import free_port, run_two_ranks, set_rank_environment
+from two_ranks import run_two_ranks, set_rank_environment, torchrun_cli
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.calibration.intrinsic import save_calibration
@@ -80,15 +77,10 @@ def test_torchrun_launch_of_the_cli(tmp_path: Path) -> None:
     frames = [replace(f, stamp_ns=1_000_000 * i) for i, f in enumerate(synthetic_frames(6, seed=1))]
     save_npz(tmp_path / "frames.npz", frames)
     save_calibration(tmp_path / "cal.npz", IntrinsicCalibration.identity(H, W))
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join(
-        [str(Path(__file__).resolve().parents[2]), os.environ.get("PYTHONPATH", "")])}
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2",
-           "--master_addr", "127.0.0.1", "--master_port", str(free_port()),
-           "-m", "tof_mpd_ros.cli.main", "train", str(tmp_path / "frames.npz"),
-           "-o", str(tmp_path / "w.npz"), "--calibration", str(tmp_path / "cal.npz"),
-           "--epochs", "2", "--batch-size", "100", "--max-samples-per-frame", "300",
-           "--target-clip-mm", "15", "--edge-thresholds", "paper"]
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    done = torchrun_cli(["train", str(tmp_path / "frames.npz"),
+                         "-o", str(tmp_path / "w.npz"), "--calibration", str(tmp_path / "cal.npz"),
+                         "--epochs", "2", "--batch-size", "100", "--max-samples-per-frame", "300",
+                         "--target-clip-mm", "15", "--edge-thresholds", "paper"])
     assert done.returncode == 0, done.stderr[-3000:]
     summary = json.loads((tmp_path / "w.json").read_text())
     assert summary["epochs"] == 2 and summary["world"] == 2

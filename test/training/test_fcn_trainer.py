@@ -5,9 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import subprocess
-import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -15,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 from synthetic_fcn_frames import fcn_frames
-from two_ranks import free_port, run_two_ranks, set_rank_environment
+from two_ranks import run_two_ranks, set_rank_environment, torchrun_cli
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.calibration.intrinsic import save_calibration
@@ -298,15 +295,10 @@ def test_torchrun_launch_of_the_cli_trains_the_fcn_kind(identity, tmp_path: Path
     frames = [replace(f, stamp_ns=1_000_000 * i) for i, f in enumerate(_dist_frames())]
     save_npz(tmp_path / "frames.npz", frames)
     save_calibration(tmp_path / "cal.npz", identity)
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join(
-        [str(Path(__file__).resolve().parents[2]), os.environ.get("PYTHONPATH", "")])}
-    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2",
-           "--master_addr", "127.0.0.1", "--master_port", str(free_port()),
-           "-m", "tof_mpd_ros.cli.main", "train", str(tmp_path / "frames.npz"),
-           "-o", str(tmp_path / "w.npz"), "--calibration", str(tmp_path / "cal.npz"),
-           "--model", "fcn", "--epochs", "4", "--crop-px", "32", "--batch-size", "8",
-           "--lr", "0.003", "--checkpoint-dir", str(tmp_path / "ckpt")]
-    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    done = torchrun_cli(["train", str(tmp_path / "frames.npz"),
+                         "-o", str(tmp_path / "w.npz"), "--calibration", str(tmp_path / "cal.npz"),
+                         "--model", "fcn", "--epochs", "4", "--crop-px", "32", "--batch-size",
+                         "8", "--lr", "0.003", "--checkpoint-dir", str(tmp_path / "ckpt")])
     assert done.returncode == 0, done.stderr[-3000:]
     summary = json.loads((tmp_path / "w.json").read_text())
     assert summary["model"] == "fcn" and summary["world"] == 2 and summary["epochs"] == 4

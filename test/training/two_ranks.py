@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import os
 import socket
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -35,3 +37,14 @@ def run_two_ranks(rank_main: Callable[[int, int, int, str], None], out: Path
     for key, value in ranks[0]["state"].items():
         assert torch.equal(value, ranks[1]["state"][key]), key
     return ranks
+
+
+def torchrun_cli(args: list[str]) -> subprocess.CompletedProcess:
+    """``torchrun --nproc_per_node 2 -m tof_mpd_ros.cli.main ARGS`` on this machine, one
+    thread per process, with this checkout on the path (10 min at most)."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": os.pathsep.join(
+        [str(Path(__file__).resolve().parents[2]), os.environ.get("PYTHONPATH", "")])}
+    cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node", "2",
+           "--master_addr", "127.0.0.1", "--master_port", str(free_port()),
+           "-m", "tof_mpd_ros.cli.main", *args]
+    return subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)

@@ -33,6 +33,7 @@ import numpy as np
 
 from ..sim.tof import ToFConfig
 from .fit import Problem
+from .frame_levels import levels_chi2
 from .likelihood import CORRELATION_PX, best_shift, total_sigma
 
 #: effects that act on few pixels much (edges, dim pixels beside bright ones, a misregistered
@@ -84,11 +85,11 @@ class GroupLevels:
 
     @property
     def chi2_before(self) -> float:
-        return float(np.sum((np.array(self.before_mm) / np.array(self.se_mm)) ** 2))
+        return levels_chi2(self.before_mm, self.se_mm)
 
     @property
     def chi2_after(self) -> float:
-        return float(np.sum((np.array(self.after_mm) / np.array(self.se_mm)) ** 2))
+        return levels_chi2(self.after_mm, self.se_mm)
 
     @property
     def share_left(self) -> float:

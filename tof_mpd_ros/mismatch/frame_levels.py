@@ -50,11 +50,11 @@ class FrameLevels:
 
     @property
     def chi2_before(self) -> float:
-        return float(np.sum((np.array(self.before_mm) / np.array(self.se_mm)) ** 2))
+        return levels_chi2(self.before_mm, self.se_mm)
 
     @property
     def chi2_after(self) -> float:
-        return float(np.sum((np.array(self.after_mm) / np.array(self.se_mm)) ** 2))
+        return levels_chi2(self.after_mm, self.se_mm)
 
     @property
     def explained(self) -> bool:
@@ -71,6 +71,12 @@ class FrameLevels:
                 "se_mm": [round(x, 3) for x in self.se_mm],
                 "chi2_before": round(self.chi2_before, 2),
                 "chi2_after": round(self.chi2_after, 2), "explained": self.explained}
+
+
+def levels_chi2(levels_mm: tuple[float, ...], se_mm: tuple[float, ...]) -> float:
+    """Σ (level / standard error)² over groups of pixels (frames here, tiles in
+    :mod:`.concentration`); both (G,) in mm."""
+    return float(np.sum((np.array(levels_mm) / np.array(se_mm)) ** 2))
 
 
 def frame_levels(problem: Problem, config: ToFConfig) -> FrameLevels | None:

@@ -360,21 +360,29 @@ def _nll(correction: np.ndarray, sigma: np.ndarray, target: np.ndarray) -> float
     return float(gaussian_nll(*t, torch.ones_like(t[0], dtype=torch.bool)))
 
 
+def _predict_usable(net: ResidualFCN, data: FCNTrainingData, ids: list[int],
+                    device: torch.device | str = "cpu") -> tuple[np.ndarray, ...]:
+    """Whole frames ``ids`` through :func:`run_fcn`, as at inference: ``(before, after, sigma,
+    correction, target)``, each (M,) over the usable pixels, mm (errors ``R - R*`` before and
+    after the correction, the predicted σ, the correction and the clipped target)."""
+    parts: list[list[np.ndarray]] = [[], [], [], [], []]
+    for c0 in range(0, len(ids), FRAMES_PER_CHUNK):
+        chunk = ids[c0:c0 + FRAMES_PER_CHUNK]
+        cal, ref = data.calibrated[chunk], data.reference[chunk]
+        corr, sigma, _ = run_fcn(net, cal, data.amplitude[chunk], device=device)
+        ok = data.usable[chunk].numpy()
+        for part, a in zip(parts, (cal - ref, cal + corr - ref, sigma, corr,
+                                   data.target[chunk].numpy()), strict=True):
+            part.append(a[ok])
+    return tuple(np.concatenate(p) for p in parts)
+
+
 def _validate(net: ResidualFCN, data: FCNTrainingData, val_ids: list[int],
               cfg: FCNTrainConfig, device: torch.device) -> dict[str, float]:
     """Validation metrics on whole frames through :func:`run_fcn` (see the module docstring)."""
     if not val_ids:
         return {}
-    parts: list[list[np.ndarray]] = [[], [], [], [], []]
-    for c0 in range(0, len(val_ids), FRAMES_PER_CHUNK):
-        ids = val_ids[c0:c0 + FRAMES_PER_CHUNK]
-        cal, ref = data.calibrated[ids], data.reference[ids]
-        corr, sigma, _ = run_fcn(net, cal, data.amplitude[ids], device=device)
-        ok = data.usable[ids].numpy()
-        for part, a in zip(parts, (cal - ref, cal + corr - ref, sigma, corr,
-                                   data.target[ids].numpy()), strict=True):
-            part.append(a[ok])
-    before, after, sigma, corr, target = (np.concatenate(p) for p in parts)
+    before, after, sigma, corr, target = _predict_usable(net, data, val_ids, device)
     s = error_stats(before, after, sigma, cfg.max_sigma_mm)
     if s["pixels"] == 0:
         return {}
@@ -404,15 +412,8 @@ def sigma_gain(error_mm: np.ndarray, sigma_mm: np.ndarray) -> float:
 def recalibrate_sigma(net: ResidualFCN, data: FCNTrainingData, val_ids: list[int]) -> float:
     """Fit :func:`sigma_gain` on the validation frames (whole, through :func:`run_fcn`) and
     fold it into ``net``'s σ output scales; returns the gain."""
-    errors, sigmas = [], []
-    for c0 in range(0, len(val_ids), FRAMES_PER_CHUNK):
-        ids = val_ids[c0:c0 + FRAMES_PER_CHUNK]
-        cal = data.calibrated[ids]
-        corr, sigma, _ = run_fcn(net, cal, data.amplitude[ids])
-        ok = data.usable[ids].numpy()
-        errors.append((cal + corr - data.reference[ids])[ok])
-        sigmas.append(sigma[ok])
-    gain = sigma_gain(np.concatenate(errors), np.concatenate(sigmas))
+    _, after, sigma, _, _ = _predict_usable(net, data, val_ids)
+    gain = sigma_gain(after, sigma)
     a = net.architecture
     net.architecture = replace(a, sigma_floor_mm=a.sigma_floor_mm * gain,
                                sigma_scale_mm=a.sigma_scale_mm * gain)
