@@ -21,6 +21,7 @@ from tof_mpd_ros.correction.fcn import (
     ResidualFCN,
     fcn_inputs,
     gaussian_nll,
+    pad_to_multiple,
     receptive_field_px,
     run_fcn,
 )
@@ -144,7 +145,36 @@ def test_inputs_are_relative_to_the_frame_except_the_absolute_planes() -> None:
     torch.testing.assert_close(x1[0, 4, :H, :W] - x0[0, 4, :H, :W],
                                torch.full((H, W), math.log(7) / LOG_AMPLITUDE_SCALE),
                                atol=1e-5, rtol=0)
-    assert float(x0[0, :, H:, :].abs().sum()) == 0     # padding is zero, marked invalid
+    # the padding mirrors the last rows and columns (a band of zeros is what training
+    # never shows the network)
+    torch.testing.assert_close(x0[0, :, H:, :], x0[0, :, H - 15:H - 1, :].flip(1), atol=0,
+                               rtol=0)
+    torch.testing.assert_close(x0[0, :, :, W:], x0[0, :, :, W - 11:W - 1].flip(2), atol=0,
+                               rtol=0)
+
+
+def test_padding_of_a_tiny_frame_repeats_its_edge() -> None:
+    """A side shorter than its padding cannot be mirrored: the edge pixels are repeated."""
+    x = torch.arange(12, dtype=torch.float32).reshape(1, 1, 3, 4)
+    padded = pad_to_multiple(x, 16)
+    assert padded.shape == (1, 1, 16, 16)
+    torch.testing.assert_close(padded[0, 0, 15, 15], x[0, 0, 2, 3])
+    torch.testing.assert_close(padded[0, 0, :3, 4:], x[0, 0, :, 3:].expand(3, 12))
+
+
+def test_kernel_takes_no_neighbour_from_the_padding() -> None:
+    """Equal weights on a ramp of 2 mm per column: a column with its two neighbours on each
+    side in the frame keeps its range; the last column, with two on one side only, moves by
+    the mean of (-4, -2, 0) = -2 mm, as on a training crop's border. Mirrored neighbours in
+    the kernel would give (-4 - 2 + 0 - 2 - 4) / 5 = -2.4 mm."""
+    model = FCNCorrectionModel.untrained(IntrinsicCalibration.identity(H, W), seed=7)
+    r = np.tile(300.0 + 2.0 * np.arange(W, dtype=np.float32), (H, 1))
+    a = np.full((H, W), 50.0, np.float32)
+    _constant_head(model, 0.0, -3.0)
+    shift = correct(model, r, a).range_mm - r
+    np.testing.assert_allclose(shift[:, 2:-2], 0.0, atol=1e-3)
+    np.testing.assert_allclose(shift[:, -1], -2.0, atol=1e-3)
+    np.testing.assert_allclose(shift[:, 0], 2.0, atol=1e-3)
 
 
 def test_local_detail_is_the_range_less_its_neighbours_mean_clipped() -> None:

@@ -47,8 +47,8 @@ def fcn_model() -> FCNCorrectionModel:
     optimiser = torch.optim.Adam(model.net.parameters(), lr=3e-3)
     model.net.train()
     for _ in range(15):
-        corr, sigma = model.net(x)
-        loss = gaussian_nll(corr[:, :H, :W], sigma[:, :H, :W], target, mask)
+        corr, sigma = model.net(x, (H, W))
+        loss = gaussian_nll(corr, sigma, target, mask)
         optimiser.zero_grad()
         loss.backward()
         optimiser.step()

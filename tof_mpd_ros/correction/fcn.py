@@ -27,14 +27,14 @@ Gaussian negative log-likelihood (a proper scoring rule: the expected loss is lo
 σ), so σ means millimetres of expected error and can be checked: the fraction of pixels with
 ``|error| <= k σ`` should be 68 / 95 / 99.7 % for k = 1, 2, 3.
 
-Inputs, per pixel (0 where the measurement is invalid; the frame is zero-padded to a multiple
-of ``2^(levels - 1)``): the calibrated range relative to the frame's median (per 100 mm), the
-absolute range (m: multipath depends on scale), the log amplitude relative to the frame's
-median, the validity mask, the absolute log amplitude (per ``LOG_AMPLITUDE_SCALE``: the noise
-and a dark surface's bias depend on the light a pixel receives, in the camera's own units) and
-the local range detail (the range minus the mean of its valid 7 × 7 neighbours, clipped to
-±50 mm, per 50 mm: the millimetre structure the noise lives in, at a scale the first layer
-sees).
+Inputs, per pixel (0 where the measurement is invalid; the frame is mirrored out to a multiple
+of ``2^(levels - 1)``, :func:`pad_to_multiple`): the calibrated range relative to the frame's
+median (per 100 mm), the absolute range (m: multipath depends on scale), the log amplitude
+relative to the frame's median, the validity mask, the absolute log amplitude (per
+``LOG_AMPLITUDE_SCALE``: the noise and a dark surface's bias depend on the light a pixel
+receives, in the camera's own units) and the local range detail (the range minus the mean of
+its valid 7 × 7 neighbours, clipped to ±50 mm, per 50 mm: the millimetre structure the noise
+lives in, at a scale the first layer sees).
 """
 
 from __future__ import annotations
@@ -165,13 +165,21 @@ class ResidualFCN(nn.Module):
             x = self.decoders[i](torch.cat([skips[i], x], dim=1))
         return self.head(x)
 
-    def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(correction mm, σ mm), each (B, H, W) float32."""
-        return self.scale(self.raw(x), x)
+    def forward(self, x: torch.Tensor, size: tuple[int, int] | None = None
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(correction mm, σ mm), each (B, h, w) float32: the top-left ``size`` = (h, w) of
+        the padded input (its whole extent if None), see :meth:`scale`."""
+        out = self.raw(x)
+        if size is not None:
+            h, w = size
+            out, x = out[..., :h, :w], x[..., :h, :w]
+        return self.scale(out, x)
 
     def scale(self, out: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(correction mm, σ mm) of the raw outputs ``out`` (B, 2 [+ k²], H, W) of the inputs
-        ``x``; in float32 whatever precision ``out`` was computed in."""
+        ``x``; in float32 whatever precision ``out`` was computed in. Give both without the
+        padding: the kernel then takes no neighbour from beyond the frame (mirrored pixels
+        would be counted twice), as on a training crop's border."""
         a = self.architecture
         out = out.float().contiguous()  # the planes below are read one channel at a time
         sigma = a.sigma_floor_mm + a.sigma_scale_mm * tnf.softplus(out[:, 1])
@@ -241,7 +249,7 @@ def fcn_inputs(calibrated_mm: np.ndarray, amplitude: np.ndarray, multiple: int
         multiple: pad H and W up to a multiple of this.
 
     Returns:
-        ``(x, valid)``: x (B, 6, H', W') float32 (zero-padded at the bottom and right), valid
+        ``(x, valid)``: x (B, 6, H', W') float32 (mirrored out at the bottom and right), valid
         (B, H, W) bool.
     """
     r = np.asarray(calibrated_mm, np.float32)
@@ -255,13 +263,27 @@ def fcn_inputs(calibrated_mm: np.ndarray, amplitude: np.ndarray, multiple: int
                        np.where(valid, log_a - _median_per_frame(log_a, valid), 0.0),
                        valid.astype(np.float32), log_a / LOG_AMPLITUDE_SCALE,
                        np.zeros_like(r0)], axis=1).astype(np.float32)
-    h, w = r.shape[-2:]
-    hp, wp = -(-h // multiple) * multiple, -(-w // multiple) * multiple
     x = torch.from_numpy(planes)
     x[:, 5] = _local_detail(torch.from_numpy(r0), torch.from_numpy(valid.astype(np.float32)))
-    if (hp, wp) != (h, w):
-        x = tnf.pad(x, (0, wp - w, 0, hp - h))
-    return x, valid
+    return pad_to_multiple(x, multiple), valid
+
+
+def pad_to_multiple(x: torch.Tensor, multiple: int) -> torch.Tensor:
+    """(B, C, H', W'): ``x`` (B, C, H, W) extended at the bottom and right to multiples of
+    ``multiple`` by mirroring its last rows and columns.
+
+    Why mirrored, not zeros: the network trains on crops that need no padding, so a band of
+    zeros (an invalid stripe it has never seen) at inference bent its coarse levels: with
+    zeros, the last 20 columns of a 180-px-wide frame (12 padded) were within 5 mm on 13–43 %
+    of pixels against 95 % mid-frame (MD-Test, docs/method.md §9). A mirror looks like scene.
+    """
+    h, w = x.shape[-2:]
+    ph, pw = -h % multiple, -w % multiple
+    if not (ph or pw):
+        return x
+    # "reflect" needs the pad smaller than the side; a tiny frame falls back to repetition
+    mode = "reflect" if ph < h and pw < w else "replicate"
+    return tnf.pad(x, (0, pw, 0, ph), mode=mode)
 
 
 def _box_mean(planes: torch.Tensor) -> torch.Tensor:
@@ -373,10 +395,10 @@ def run_fcn(net: ResidualFCN, calibrated_mm: np.ndarray, amplitude: np.ndarray, 
     x = x.to(dev).contiguous(memory_format=torch.channels_last)
     with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=precision == "bfloat16"):
         out = net.raw(x)
-    corr, sigma = net.scale(out, x)
+    corr, sigma = net.scale(out[..., :h, :w], x[..., :h, :w])
     nan = np.float32(np.nan)
-    corr_np = corr[:, :h, :w].float().cpu().numpy()
-    sigma_np = sigma[:, :h, :w].float().cpu().numpy()
+    corr_np = corr.float().cpu().numpy()
+    sigma_np = sigma.float().cpu().numpy()
     return (np.where(valid, corr_np, nan).astype(np.float32),
             np.where(valid, sigma_np, nan).astype(np.float32), valid)
 

@@ -56,7 +56,6 @@ from typing import Any
 
 import numpy as np
 import torch
-import torch.nn.functional as tnf
 
 from ..calibration.intrinsic import IntrinsicCalibration
 from ..correction.fcn import (
@@ -65,6 +64,7 @@ from ..correction.fcn import (
     ResidualFCN,
     fcn_inputs,
     gaussian_nll,
+    pad_to_multiple,
     run_fcn,
 )
 from ..correction.pipeline import correct
@@ -241,17 +241,13 @@ def draw_crops(train_ids: Sequence[int], frame_shape: tuple[int, int], cfg: FCNT
 def crop_batch(data: FCNTrainingData, crops: torch.Tensor, cfg: FCNTrainConfig
                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``(inputs (B, 4, h', w'), target (B, h, w), mask (B, h, w))`` of the crops; the inputs
-    zero-padded to the network's multiple."""
+    padded to the network's multiple as at inference (:func:`pad_to_multiple`)."""
     ch, cw = crop_shape(data.frame_shape, cfg.crop_px)
     rows = crops.tolist()
     x = torch.stack([data.inputs[f, :, y:y + ch, x0:x0 + cw] for f, y, x0 in rows])
     t = torch.stack([data.target[f, y:y + ch, x0:x0 + cw] for f, y, x0 in rows])
     m = torch.stack([data.usable[f, y:y + ch, x0:x0 + cw] for f, y, x0 in rows])
-    k = cfg.architecture.multiple
-    ph, pw = -(-ch // k) * k - ch, -(-cw // k) * k - cw
-    if ph or pw:
-        x = tnf.pad(x, (0, pw, 0, ph))
-    return x, t, m
+    return pad_to_multiple(x, cfg.architecture.multiple), t, m
 
 
 def learning_rate(cfg: FCNTrainConfig, step: int, total_steps: int) -> float:
@@ -264,9 +260,7 @@ def learning_rate(cfg: FCNTrainConfig, step: int, total_steps: int) -> float:
 def _step(model: torch.nn.Module, opt: torch.optim.Optimizer, x: torch.Tensor,
           t: torch.Tensor, m: torch.Tensor, ranks: Ranks, beta: float) -> tuple[float, float]:
     """One Adam step; returns (this rank's plain NLL sum, its masked pixels)."""
-    h, w = t.shape[-2:]
-    corr, sigma = model(x)
-    corr, sigma = corr[:, :h, :w], sigma[:, :h, :w]
+    corr, sigma = model(x, t.shape[-2:])
     weighted = gaussian_nll(corr, sigma, t, m, beta)
     n = float(m.sum())
     n_all = sum_over_ranks([n], ranks)[0]
