@@ -16,8 +16,15 @@ the same kind (the issue's bar for reduced precision: >= 99.9 %).
 
 Inputs it makes itself: the synthetic scene of ``bench_pipeline`` (planes, a box, a disc, 2 mm
 noise), with untrained models of both kinds on an identity calibration (timing does not depend
-on the weights' values). ``--weights-patch`` / ``--weights-fcn`` time trained files instead
-(their frames are the synthetic ones resized to the file's crop).
+on the weights' values). ``--weights-patch`` / ``--weights-fcn`` time trained files instead:
+at each size a file's central window of that size (``pipeline.central_window``, as the node
+and ``tof-mpd correct`` run it), or the file's own frame where it is smaller (said in the
+output); the synthetic frames are resized to it.
+
+The OpenMP threads wait passively (``OMP_WAIT_POLICY=PASSIVE`` unless set), as in the
+corrector node: spinning workers make a 2-thread forward pass many times slower when another
+process holds a core. Set ``OMP_WAIT_POLICY=ACTIVE GOMP_SPINCOUNT=20000`` to time a machine
+given to the corrector alone (docs/performance.md has both).
 
 Usage: ``python benchmarks/bench_kinds.py [--repeats 20] [--json out.json]``; ~1-2 min on an
 idle 2-core machine.
@@ -34,6 +41,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+from tof_mpd_ros.machine import set_openmp_wait_policy
+
+set_openmp_wait_policy()  # before torch loads OpenMP (it reads the policy once)
+
 import numpy as np
 import torch
 
@@ -42,7 +53,7 @@ from bench_pipeline import _resize, _synthetic, cpu_peak, gemm_ceiling, machine
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.fcn import N_INPUTS, FCNCorrectionModel, ResidualFCN
-from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
+from tof_mpd_ros.correction.pipeline import CorrectionModel, central_window, correct
 
 PAPER_MS = 165.0
 TARGETS_MS = {"180x140": 15.0, "320x240": 33.0}
@@ -75,11 +86,17 @@ def models(h: int, w: int, args: argparse.Namespace) -> dict[str, Any]:
     from tof_mpd_ros.correction.weights import load_weights
 
     calib = IntrinsicCalibration.identity(h, w)
-    patch = (load_weights(args.weights_patch) if args.weights_patch
+    patch = (window_of(load_weights(args.weights_patch), h, w) if args.weights_patch
              else CorrectionModel.untrained(calib, seed=0))
-    fcn = (load_weights(args.weights_fcn) if args.weights_fcn
+    fcn = (window_of(load_weights(args.weights_fcn), h, w) if args.weights_fcn
            else FCNCorrectionModel.untrained(calib, seed=0))
     return {"patch": patch, "fcn": fcn}
+
+
+def window_of(model: Any, h: int, w: int) -> Any:
+    """``model`` on its central h x w window, or whole when its frame is smaller."""
+    mh, mw = model.shape
+    return central_window(model, min(w, mw), min(h, mh))
 
 
 def frames_for(model: Any, base: list[tuple[np.ndarray, np.ndarray]]
@@ -111,6 +128,7 @@ def time_size(h: int, w: int, args: argparse.Namespace) -> dict[str, Any]:
         out[f"{kind}/bfloat16"]["within_0.5mm_of_float32"] = bf16_agreement(
             kinds[kind], frames[kind])
     out["fcn_gflop_per_frame"] = conv_flops(kinds["fcn"].net, *kinds["fcn"].shape) / 1e9
+    out["frames"] = {kind: f"{m.shape[1]}x{m.shape[0]}" for kind, m in kinds.items()}
     return out
 
 
@@ -130,6 +148,9 @@ def print_size(label: str, res: dict[str, Any], peak: dict[str, Any], gemm: floa
     base = res["patch/float32"]["median_ms"]
     print(f"\n{label}  (target <= {TARGETS_MS[label]:.0f} ms; the paper: {PAPER_MS:.0f} ms "
           "on a GPU)")
+    smaller = {k: f for k, f in res["frames"].items() if f != label}
+    if smaller:
+        print(f"  NOTE: timed on the weights' own smaller frame: {smaller}")
     print(f"  {'kind/precision':<18}{'median ms':>10}{'p90 ms':>9}{'vs patch f32':>14}"
           f"{'bf16 within 0.5 mm':>20}")
     for kind, precision in ROWS:
@@ -159,6 +180,9 @@ def main() -> None:
     gemm = gemm_ceiling()
     print(f"CPU: {info['cpu']}, {cores} usable cores, torch {info['torch']} with "
           f"{info['torch_threads']} threads; load {info['load_average_start']}")
+    info["openmp_wait"] = {k: os.environ.get(k) for k in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT")}
+    print(f"OpenMP waits: {info['openmp_wait']} (docs/performance.md: spinning is faster on an "
+          "idle machine, far slower on a busy one)")
     print(f"nominal float32 peak: {peak['how']} = {peak['peak_gflops']} GFLOP/s; "
           f"bf16 instructions: {peak['bf16']}")
     results = {}
