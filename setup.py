@@ -21,7 +21,7 @@ NODE_EXECUTABLES = ("corrector", "collector", "sim_cell")
 data_files = [
     ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
     (f"share/{PACKAGE}", ["package.xml"]),
-    (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml"))),
+    (f"share/{PACKAGE}/config", sorted(glob("config/*.yaml") + glob("config/*.xml"))),
     (f"share/{PACKAGE}/launch", sorted(glob("launch/*.py"))),
     # Ready-made RViz2 config and Foxglove layout of the live stream (README, "Viewing").
     (f"share/{PACKAGE}/views", sorted(glob("views/*.rviz") + glob("views/*.json"))),

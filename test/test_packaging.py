@@ -138,6 +138,7 @@ def test_colcon_build_installs_resolvable_executables(tmp_path: Path) -> None:
     prefix = workspace / "install" / "tof_mpd_ros"
     assert (prefix / "share/ament_index/resource_index/packages/tof_mpd_ros").is_file()
     assert (prefix / "share/tof_mpd_ros/config/corrector.yaml").is_file()
+    assert (prefix / "share/tof_mpd_ros/config/fastdds_large_images.xml").is_file()
     for view in VIEWS:
         assert (prefix / "share/tof_mpd_ros/views" / view.name).is_file(), view.name
     site = next(prefix.glob("lib/python3*/site-packages"))
@@ -184,6 +185,7 @@ def test_wheel_installs_the_share_files(tmp_path: Path) -> None:
     share = f"tof_mpd_ros-{version}.data/data/share/tof_mpd_ros/"
     names = set(zipfile.ZipFile(wheel).namelist())
     expected = [f"config/{p.name}" for p in (REPO / "config").glob("*.yaml")]
+    expected += [f"config/{p.name}" for p in (REPO / "config").glob("*.xml")]
     expected += [f"launch/{p.name}" for p in (REPO / "launch").glob("*.py")]
     expected += [f"views/{p.name}" for p in VIEWS]
     assert VIEWS and not [e for e in expected if share + e not in names], sorted(names)

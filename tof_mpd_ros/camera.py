@@ -10,6 +10,7 @@ Conventions used throughout the package:
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, replace
 
@@ -108,9 +109,11 @@ class Intrinsics:
         """Cosine of each pixel's ray angle to the optical axis: ``depth = range * cos``.
 
         Returns:
-            (H, W) float64 in (0, 1].
+            (H, W) float64 in (0, 1], read-only: computed once per distinct camera and
+            shared (at 320x240 the rays cost ~5 ms, paid up to three times per corrected
+            frame of a z-depth stream).
         """
-        return self.ray_directions()[..., 2]
+        return _z_per_radial(self)
 
     def radial_to_z(self, range_mm: np.ndarray) -> np.ndarray:
         """Convert radial range to z-depth (same unit as the input, NaN stays NaN).
@@ -165,3 +168,11 @@ class Intrinsics:
     def as_dict(self) -> dict[str, float | int]:
         return {"fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
                 "width": self.width, "height": self.height}
+
+
+@functools.lru_cache(maxsize=16)
+def _z_per_radial(intrinsics: Intrinsics) -> np.ndarray:
+    """:meth:`Intrinsics.z_per_radial` of one camera (the frozen dataclass is the key)."""
+    cos = np.ascontiguousarray(intrinsics.ray_directions()[..., 2])
+    cos.flags.writeable = False
+    return cos

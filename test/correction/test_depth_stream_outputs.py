@@ -66,6 +66,23 @@ def test_points_of_radial_range_lie_at_that_distance_along_the_pixel_ray() -> No
     assert z < radial[v, u] / 1000.0
 
 
+def test_z_radial_conversion_is_the_ray_cosine_computed_once_per_camera() -> None:
+    """The cosine is cached per camera (equal intrinsics share it, read-only); the conversions
+    equal the exact per-call formula, and another camera gets its own rays."""
+    from tof_mpd_ros.camera import Intrinsics
+
+    k = Intrinsics.from_fov(64, 48, 60.0)
+    cos = k.ray_directions()[..., 2]
+    depth = np.random.default_rng(1).uniform(300, 900, (48, 64)).astype(np.float32)
+    np.testing.assert_array_equal(k.z_to_radial(depth), (depth / cos).astype(np.float32))
+    np.testing.assert_array_equal(k.radial_to_z(depth), (depth * cos).astype(np.float32))
+    same = Intrinsics.from_fov(64, 48, 60.0)
+    assert same.z_per_radial() is k.z_per_radial() and not k.z_per_radial().flags.writeable
+    wide = Intrinsics.from_fov(64, 48, 90.0)
+    assert wide.z_per_radial().min() < k.z_per_radial().min() - 0.05
+    np.testing.assert_array_equal(wide.z_per_radial(), wide.ray_directions()[..., 2])
+
+
 def test_points_refuse_a_wrong_size_or_convention() -> None:
     with pytest.raises(InputError):
         points_m(np.ones((H + 1, W), np.float32), K, "z")
