@@ -4,10 +4,13 @@ per-kind defaults of ``--model patch|fcn``."""
 from __future__ import annotations
 
 import argparse
+import io
+import json
+from pathlib import Path
 
 import pytest
 
-from tof_mpd_ros.cli.train import _clip_arg
+from tof_mpd_ros.cli.train import _clip_arg, write_summary
 
 
 def test_target_clip_is_positive_numbers_or_auto() -> None:
@@ -55,3 +58,16 @@ def test_model_kind_picks_the_trainer_and_its_defaults(
     config = seen["config"]
     assert type(config).__name__ == ("FCNTrainConfig" if kind == "fcn" else "TrainConfig")
     assert {k: getattr(config, k) for k in expected} == expected
+
+
+def test_summary_on_stdout_redirected_to_its_own_file_stays_one_document(tmp_path: Path) -> None:
+    """``tof-mpd train ... -o W.npz > W.json``: the file is the whole summary, parseable."""
+    summary = {"weights": "W.npz", "final": {"epoch": 2}, "history": [{"epoch": 1}, {"epoch": 2}]}
+    path = tmp_path / "W.json"
+    with path.open("w") as stdout:           # the shell's redirection, opened first
+        write_summary(summary, path, stdout)
+    assert json.loads(path.read_text()) == summary
+    other = io.StringIO()                    # stdout elsewhere: the short form is printed
+    write_summary(summary, tmp_path / "V.json", other)
+    assert json.loads(other.getvalue()) == {"weights": "W.npz", "final": {"epoch": 2}}
+    assert json.loads((tmp_path / "V.json").read_text()) == summary

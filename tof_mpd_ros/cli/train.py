@@ -6,8 +6,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 from .output import add_output
 
@@ -146,6 +147,25 @@ def run_train(args: argparse.Namespace) -> int:
     summary = {"weights": str(args.output), "model": model.kind, "frames": len(frames),
                "epochs": len(history), "world": world,
                "final": history[-1] if history else {}, "history": history, **extra}
-    args.output.with_suffix(".json").write_text(json.dumps(summary, indent=2))
-    print(json.dumps({k: v for k, v in summary.items() if k != "history"}))
+    write_summary(summary, args.output.with_suffix(".json"), sys.stdout)
     return 0
+
+
+def write_summary(summary: dict, path: Path, stream: TextIO) -> None:
+    """Write the whole ``summary`` to ``path`` and the summary without its history to
+    ``stream`` — unless the stream is that very file (``tof-mpd train ... -o W.npz >
+    W.json``), which would then hold two documents; the file keeps the whole one and a note
+    goes to stderr."""
+    path.write_text(json.dumps(summary, indent=2))
+    if _same_file(stream, path):
+        print(f"the summary is in {path} (stdout is that file)", file=sys.stderr)
+        return
+    print(json.dumps({k: v for k, v in summary.items() if k != "history"}), file=stream)
+
+
+def _same_file(stream: TextIO, path: Path) -> bool:
+    try:
+        fd_stat, path_stat = os.fstat(stream.fileno()), path.stat()
+    except (OSError, ValueError, AttributeError):
+        return False  # no file behind the stream (a pipe, a test's StringIO)
+    return (fd_stat.st_dev, fd_stat.st_ino) == (path_stat.st_dev, path_stat.st_ino)
