@@ -240,7 +240,7 @@ def draw_crops(train_ids: Sequence[int], frame_shape: tuple[int, int], cfg: FCNT
 
 def crop_batch(data: FCNTrainingData, crops: torch.Tensor, cfg: FCNTrainConfig
                ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """``(inputs (B, 4, h', w'), target (B, h, w), mask (B, h, w))`` of the crops; the inputs
+    """``(inputs (B, 6, h', w'), target (B, h, w), mask (B, h, w))`` of the crops; the inputs
     padded to the network's multiple as at inference (:func:`pad_to_multiple`)."""
     ch, cw = crop_shape(data.frame_shape, cfg.crop_px)
     rows = crops.tolist()
