@@ -172,3 +172,38 @@ def test_camera_first_answers_are_not_rejudged_by_the_old_thresholds():
     assert reselect(old)["selected"] == []          # below today's threshold: none
     new = {**old, "selected": ["multipath"], "camera_profile": {"effects": []}}
     assert reselect(new) is new                      # round 1 there is the profile's
+
+
+def test_benchmark_resume_runs_only_the_unanswered_cases(tmp_path, monkeypatch):
+    """An interrupted run resumed: the answered cases are kept as they are, the others are made
+    and answered; a directory made by another plan is refused, not mixed in."""
+    from tof_mpd_ros.errors import MismatchError
+    from tof_mpd_ros.mismatch import benchmark as bm
+
+    made, answered = [], []
+    metrics = {"rmse_before_mm": 10.0, "rmse_after_mm": 8.0,
+               "interior_excess_rmse_before_mm": 4.0, "interior_excess_rmse_after_mm": 2.0}
+
+    def generate(out, i, effects, seed, n_frames, base):
+        made.append(i)
+        return {"case": i, "file": f"cases/case_{i:03d}.npz", "base": base,
+                "effects": [{"name": n, "params": {}} for n in effects]}
+
+    monkeypatch.setattr(bm, "_generate_one", generate)
+    monkeypatch.setattr(bm, "load_frames", lambda path: path)
+    monkeypatch.setattr(bm, "analyse", lambda path: answered.append(path.name) or path)
+    monkeypatch.setattr(bm, "to_json", lambda res: {"selected": [], "parameters": {},
+                                                    "metrics": metrics,
+                                                    "location": {"global": {}}})
+    monkeypatch.setattr(bm, "oracle_metrics", lambda path, label: metrics)
+    bm.run_benchmark(5, seed=3, out_dir=tmp_path)
+    assert made == [0, 1, 2, 3, 4]
+    (tmp_path / "results" / "case_003.oracle.json").unlink()  # interrupted before its oracle
+    (tmp_path / "results" / "case_004.json").unlink()
+    made.clear()
+    answered.clear()
+    doc = bm.run_benchmark(5, seed=3, out_dir=tmp_path, resume=True)
+    assert made == [3, 4] and answered == ["case_003.npz", "case_004.npz"]
+    assert len(doc["cases"]) == 5 and doc["cases_kept_from_earlier_run"] == 3
+    with pytest.raises(MismatchError, match="--resume needs the same"):
+        bm.run_benchmark(5, seed=4, out_dir=tmp_path, resume=True)

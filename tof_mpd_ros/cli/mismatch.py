@@ -62,6 +62,9 @@ def register(subparsers: Any) -> None:
                         "camera profile per case (noise, level, pixel pattern, wiggle, "
                         "amplitude bias and units, modulation frequency), or such a camera "
                         "with path-traced light transport ([pathtrace] extra)")
+    b.add_argument("--resume", action="store_true",
+                   help="keep the cases an interrupted run with the same --cases, --seed and "
+                        "--base answered in OUT, run the others")
     b.add_argument("--merge", nargs="+", metavar="RUN_DIR",
                    help="instead of running: score finished benchmark directories together")
     add_output(b, "output directory (created)")
@@ -131,7 +134,8 @@ def _benchmark(args: argparse.Namespace) -> int:
         return 0
     with tqdm(total=args.cases, desc="benchmark cases", file=sys.stderr) as bar:
         doc = run_benchmark(args.cases, args.seed, args.output, n_frames=args.frames,
-                            base=args.base, progress=lambda msg: bar.update(1))
+                            base=args.base, resume=args.resume,
+                            progress=lambda msg: bar.update(1))
     print(text_table(doc["cases"], doc["summary"]))
     print(json.dumps(doc["summary"], indent=2))
     return 0

@@ -292,8 +292,31 @@ def merge_runs(run_dirs: list[str | Path], out_dir: str | Path) -> dict[str, Any
     return doc
 
 
+def _finished_labels(out: Path, plan: list[tuple[str, ...]],
+                     base: str) -> dict[int, dict[str, Any]]:
+    """Labels of the cases an earlier run of the same plan in ``out`` answered (answer and
+    oracle on disk), by case index. A directory made with another seed, base or case count
+    is refused rather than mixed in."""
+    path = out / "labels.json"
+    if not path.exists():
+        return {}
+    done = {}
+    for label in json.loads(path.read_text()):
+        i = label["case"]
+        names = tuple(e["name"] for e in label["effects"])
+        if i >= len(plan) or names != plan[i] or label.get("base", "nominal") != base:
+            raise MismatchError(
+                f"{out}: case {i} was made by another benchmark (effects {names}, base "
+                f"{label.get('base', 'nominal')}); --resume needs the same --cases, --seed "
+                "and --base")
+        res = out / "results" / f"case_{i:03d}"
+        if res.with_suffix(".json").exists() and res.with_suffix(".oracle.json").exists():
+            done[i] = label
+    return done
+
+
 def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int = 6,
-                  base: str = "nominal",
+                  base: str = "nominal", resume: bool = False,
                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Generate ``n_cases`` cases, run the tool blind on each, score, write JSON + table.
 
@@ -304,6 +327,10 @@ def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int
     Writes ``cases/*.npz``, ``labels.json`` (hidden truth), ``results/case_XXX.json`` (the
     tool's answers), ``benchmark.json`` and ``benchmark.txt`` into ``out_dir``.
 
+    ``resume``: keep the cases an interrupted run of the same plan in ``out_dir`` answered
+    (each case's frames are drawn from ``(seed, case)`` alone, so the rest come out as they
+    would have) and run only the others.
+
     Returns:
         The ``benchmark.json`` document.
     """
@@ -311,9 +338,15 @@ def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int
     (out / "cases").mkdir(parents=True, exist_ok=True)
     (out / "results").mkdir(exist_ok=True)
     plan = case_plan(n_cases, seed, base)
+    done = _finished_labels(out, plan, base) if resume else {}
     labels: list[dict[str, Any]] = []
     t_gen, times = 0.0, []
     for i, effects in enumerate(plan):
+        if i in done:
+            labels.append(done[i])
+            if progress is not None:
+                progress(f"case {i} (kept)")
+            continue
         t0 = time.time()
         labels.append(_generate_one(out, i, effects, seed, n_frames, base))
         # labels live apart from the frames; the tool below is given the .npz only
@@ -338,8 +371,9 @@ def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int
     summary = summarise(rows)
     doc = _clean({"summary": summary, "cases": rows, "seed": seed, "n_frames": n_frames,
                   "base": base,
-                  "generation_s_per_case": t_gen / len(plan),
-                  "analysis_s_per_case_median": float(np.median(times)),
+                  "cases_kept_from_earlier_run": len(done),
+                  "generation_s_per_case": t_gen / max(len(times), 1),
+                  "analysis_s_per_case_median": float(np.median(times)) if times else None,
                   "machine": {"platform": platform.platform(), "processor": platform.processor(),
                               "python": platform.python_version()}})
     (out / "benchmark.json").write_text(json.dumps(doc, indent=2))
