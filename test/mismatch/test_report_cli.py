@@ -195,7 +195,8 @@ def test_benchmark_resume_runs_only_the_unanswered_cases(tmp_path, monkeypatch):
     monkeypatch.setattr(bm, "to_json", lambda res: {"selected": [], "parameters": {},
                                                     "metrics": metrics,
                                                     "location": {"global": {}}})
-    monkeypatch.setattr(bm, "oracle_metrics", lambda path, label: metrics)
+    monkeypatch.setattr(bm, "oracle_metrics", lambda path, label: dict(metrics))
+    monkeypatch.setattr(bm, "effect_visibility", lambda path, label: {})
     bm.run_benchmark(5, seed=3, out_dir=tmp_path)
     assert made == [0, 1, 2, 3, 4]
     (tmp_path / "results" / "case_003.oracle.json").unlink()  # interrupted before its oracle
@@ -207,3 +208,34 @@ def test_benchmark_resume_runs_only_the_unanswered_cases(tmp_path, monkeypatch):
     assert len(doc["cases"]) == 5 and doc["cases_kept_from_earlier_run"] == 3
     with pytest.raises(MismatchError, match="--resume needs the same"):
         bm.run_benchmark(5, seed=4, out_dir=tmp_path, resume=True)
+
+
+def test_visibility_of_a_concealed_effect_grows_with_its_strength(tmp_path, sweep):
+    """A warm-up drift of 8 mm is worth far more than the tool's per-pixel threshold when known
+    exactly; one of 0.05 mm (½(δ/σ)² ~ 0.1 mnats/px at the cell's ~2 mm noise) is not, after
+    the penalty for its two parameters."""
+    from tof_mpd_ros.mismatch.analysis import MIN_SCORE
+    from tof_mpd_ros.mismatch.benchmark import effect_visibility
+
+    seen = {}
+    for max_mm in (8.0, 0.05):
+        effect = {"temperature_drift": {"max_mm": max_mm, "tau_frames": 5.0}}
+        path = tmp_path / f"drift_{max_mm}.npz"
+        save_npz(path, sweep(effect))
+        label = {"effects": [{"name": "temperature_drift", "params": effect["temperature_drift"]}]}
+        seen[max_mm] = effect_visibility(path, label)["temperature_drift"]
+    assert seen[8.0]["score_mnats"] > 10 * MIN_SCORE and seen[8.0]["t"] > 3.0
+    assert seen[0.05]["score_mnats"] < 1.0
+
+
+def test_top1_on_visible_and_faint_cases_apart():
+    def row(truth, top1, vis):
+        return {"truth": truth, "selected": truth if top1 else [], "top1": top1,
+                "both_found": None, "rmse_before_mm": 5.0, "rmse_after_mm": 4.0,
+                "excess_before_mm": 2.0, "excess_after_mm": 1.0, "oracle_rmse_after_mm": 4.0,
+                "parameter_error": {}, "visibility_mnats": vis}
+    s = summarise([row(["hand_eye"], True, 80.0), row(["multipath"], False, 40.0),
+                   row(["time_offset"], False, 3.0), row([], True, None)])
+    assert s["visible_effect_cases"] == 2
+    assert s["top1_accuracy_visible_effect_cases"] == 0.5
+    assert s["top1_accuracy_faint_effect_cases"] == 0.0

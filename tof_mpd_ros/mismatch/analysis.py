@@ -243,20 +243,8 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
         raise MismatchError("the monitor workflow needs the config of an earlier run")
     given = ToFConfig.nominal() if config is None else config
     base, facts = adopt_recording(frames, given, keep_units=monitor)
-    motions = camera_motion(frames)
-    predictors = [FramePredictor(f, base, frame_index=i, motion=m)
-                  for i, (f, m) in enumerate(zip(frames, motions, strict=True))]
-    real = [np.asarray(f.range_mm, dtype=np.float64) for f in frames]
-    descriptors = all_descriptors(predictors, motions)
-    # pixels on a reference depth edge are left out of fits and scores: one reference sample
-    # cannot say where inside the pixel the edge lies, so their prediction is unreliable
-    usable = [np.isfinite(r) & np.isfinite(p.predict().range_mm)
-              & (d["edge_distance_px"] >= edge_exclusion_px)
-              for r, p, d in zip(real, predictors, descriptors, strict=True)]
-    if not any(u.any() for u in usable):
-        raise MismatchError("no pixel has both a real range and a predicted one")
-    jumps = [edge_jump_mm(f.reference_mm) for f in frames]
-    problem = Problem(real, predictors, split_frames(frames), usable, reference_noise_mm, jumps)
+    problem, descriptors = build_problem(frames, base, reference_noise_mm, edge_exclusion_px)
+    predictors = problem.predictors
     residual0, sigma0 = _residuals(problem, None)
     location = locate(descriptors, residual0, sigma0)
 
@@ -289,6 +277,32 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
     analysis.frame_levels = search.frame_levels
     analysis.concentration = search.concentration
     return analysis
+
+
+def build_problem(frames: Sequence[ToFFrame], base: ToFConfig,
+                  reference_noise_mm: float = REFERENCE_NOISE_MM,
+                  edge_exclusion_px: float = 0.0) -> tuple[Problem, list[dict[str, np.ndarray]]]:
+    """The fitting problem of ``frames`` predicted from ``base`` (split, usable pixels, edge
+    jumps) and every frame's pixel descriptors.
+
+    Raises:
+        MismatchError: no pixel has both a real range and a predicted one.
+    """
+    motions = camera_motion(frames)
+    predictors = [FramePredictor(f, base, frame_index=i, motion=m)
+                  for i, (f, m) in enumerate(zip(frames, motions, strict=True))]
+    real = [np.asarray(f.range_mm, dtype=np.float64) for f in frames]
+    descriptors = all_descriptors(predictors, motions)
+    # pixels on a reference depth edge are left out of fits and scores: one reference sample
+    # cannot say where inside the pixel the edge lies, so their prediction is unreliable
+    usable = [np.isfinite(r) & np.isfinite(p.predict().range_mm)
+              & (d["edge_distance_px"] >= edge_exclusion_px)
+              for r, p, d in zip(real, predictors, descriptors, strict=True)]
+    if not any(u.any() for u in usable):
+        raise MismatchError("no pixel has both a real range and a predicted one")
+    jumps = [edge_jump_mm(f.reference_mm) for f in frames]
+    problem = Problem(real, predictors, split_frames(frames), usable, reference_noise_mm, jumps)
+    return problem, descriptors
 
 
 def _camera_first(search: _Search, candidates: Sequence[str]) -> tuple[list[str], list[str]]:
