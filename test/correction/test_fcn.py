@@ -254,3 +254,45 @@ def test_fcn_weights_that_do_not_fit_are_refused(tmp_path: Path) -> None:
         bad = rewrite_weights(src, tmp_path / f"{edit.__name__}.npz", edit)
         with pytest.raises(WeightsError, match=words):
             load_weights(bad)
+
+
+def _resolve_slow(range_mm, sure, unsure):
+    """Reference: pixel by pixel, the sure 8-neighbour nearest in range."""
+    out = np.where(sure, range_mm, np.nan)
+    bs, hs, ws = range_mm.shape
+    for b, y, x in zip(*np.nonzero(unsure), strict=True):
+        best, dist = np.nan, np.inf
+        for v in range(max(y - 1, 0), min(y + 2, hs)):
+            for u in range(max(x - 1, 0), min(x + 2, ws)):
+                d = abs(range_mm[b, v, u] - range_mm[b, y, x])
+                if sure[b, v, u] and d < dist:
+                    best, dist = range_mm[b, v, u], d
+        out[b, y, x] = best
+    return out
+
+
+def test_a_flying_pixel_takes_the_nearer_side() -> None:
+    from tof_mpd_ros.correction.fcn import resolve_to_a_side
+    r = np.full((1, 5, 6), 300.0, np.float32)
+    r[:, :, 3:] = 400.0
+    r[0, :, 2] = [330.0, 380.0, 330.0, 380.0, 350.0]  # a column of flying pixels
+    sure = np.ones(r.shape, bool)
+    sure[0, :, 2] = False
+    out = resolve_to_a_side(r, sure, ~sure)
+    np.testing.assert_array_equal(out[0, :4, 2], [300.0, 400.0, 300.0, 400.0])
+    assert out[0, 4, 2] in (300.0, 400.0)      # a tie takes one side, never the mix
+    np.testing.assert_array_equal(out[sure], r[sure])
+    # no sure neighbour: invalid; neither sure nor unsure: invalid
+    alone = resolve_to_a_side(r, np.zeros(r.shape, bool), np.eye(5, 6, dtype=bool)[None])
+    assert np.isnan(alone).all()
+
+
+def test_resolving_matches_the_slow_reference() -> None:
+    from tof_mpd_ros.correction.fcn import resolve_to_a_side
+    rng = np.random.default_rng(4)
+    r = rng.uniform(250, 450, (2, 9, 11)).astype(np.float32)
+    r[rng.random(r.shape) < 0.1] = np.nan
+    state = rng.integers(0, 3, r.shape)              # 0 sure, 1 unsure, 2 neither
+    sure, unsure = (state == 0) & np.isfinite(r), (state == 1) & np.isfinite(r)
+    np.testing.assert_array_equal(resolve_to_a_side(r, sure, unsure),
+                                  _resolve_slow(r, sure, unsure).astype(np.float32))

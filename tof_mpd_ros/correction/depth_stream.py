@@ -98,7 +98,8 @@ class StreamResult:
         sigma_mm: (h, w) float32 predicted standard deviation of ``depth_mm`` in mm, in the same
             convention (z: the radial σ times z / r, the ray's factor, so it is the σ of the
             z-depth published), NaN = invalid input; pixels whose σ exceeds the model's
-            ``max_sigma_mm`` keep it (their depth is NaN). The fcn kind only; None for the
+            ``max_sigma_mm`` keep it (their depth is a sure neighbour's or NaN, see
+            :func:`~.fcn.resolve_to_a_side`). The fcn kind only; None for the
             patch kind.
     """
 

@@ -53,7 +53,7 @@ from ..errors import CalibrationError, InputError
 from ..thread_pools import shared_pool
 from ..validation import check_array
 from .encoding import EncodingConfig, encode_rows, frame_planes, plane_constants
-from .fcn import FCNCorrectionModel, run_fcn
+from .fcn import FCNCorrectionModel, resolve_to_a_side, run_fcn
 from .networks import BoundaryNets, FrameBins, HeadOutputs, PatchNets, RangeRecoveryNet
 
 # Pixels per band on the CPU: the band's encodings (1440 x 240 float32, 1.4 MB) and the
@@ -151,8 +151,9 @@ class CorrectionResult:
         valid: bool, the pixels with a usable measurement.
         sigma_mm: float32 predicted standard deviation of the corrected range, mm (the
             ``"fcn"`` kind only; None for the patch networks). There ``confidence`` is
-            ``1 - sigma / max_sigma_mm`` clipped to [0, 1], ``edges`` is all False, and pixels
-            with ``sigma > max_sigma_mm`` are NaN in ``range_mm`` (not in ``range_f_mm``).
+            ``1 - sigma / max_sigma_mm`` clipped to [0, 1], ``edges`` is all False, and a
+            pixel with ``sigma > max_sigma_mm`` takes in ``range_mm`` the range of its sure
+            neighbour nearest in range, or NaN without one (``range_f_mm`` keeps its own).
     """
 
     range_mm: np.ndarray
@@ -313,7 +314,7 @@ def _correct_fcn(model: FCNCorrectionModel, r: np.ndarray, a: np.ndarray,
                                      precision=precision)
         range_f = (calibrated + corr).astype(np.float32)
         sure = valid & (sigma <= model.max_sigma_mm)
-        final = np.where(sure, range_f, nan).astype(np.float32)
+        final = resolve_to_a_side(range_f, sure, valid & ~sure)
         confidence = np.where(valid, np.clip(1 - sigma / model.max_sigma_mm, 0, 1), 0)
     else:
         valid = valid_measurement(calibrated, a3)

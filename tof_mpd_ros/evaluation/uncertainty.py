@@ -6,7 +6,8 @@ flagged as unreliable are the wrong ones (issue 17, item 2).
 * **Reliability curve**: the pixels sorted into bins of predicted σ (equal counts), and per
   bin the RMS of the actual error against the bin's RMS σ. Calibrated predictions lie on the
   diagonal; above it, over-confident; below, under-confident.
-* **Flags**: "σ > max_sigma_mm" (the pixels the model invalidates) against "|error| > 10 mm":
+* **Flags**: "σ > max_sigma_mm" (the pixels the model is unsure of: the corrector gives them a
+  neighbour's side or invalidates them) against "|error| > 10 mm" of the network's own range:
   precision (of the flagged pixels, the share that are wrong) and recall (of the wrong
   pixels, the share flagged).
 

@@ -11,8 +11,9 @@ random square crops:
   (correction, σ), averaged over the crop pixels that have a valid measurement and a reference,
   each pixel weighted by its σ^(2 β) (β-NLL, ``beta``; the history reports the plain NLL).
   The clip keeps a few flying pixels 300 mm off from dominating the mean; the likelihood lets
-  the network give such pixels a large σ (they are then invalidated at inference,
-  ``max_sigma_mm``) instead of bending the correction of their neighbours towards them;
+  the network give such pixels a large σ (beyond ``max_sigma_mm`` they take a sure
+  neighbour's side at inference, :func:`~tof_mpd_ros.correction.fcn.resolve_to_a_side`)
+  instead of bending the correction of their neighbours towards them;
 * learning rate: ``lr`` decayed to 0 along a half cosine over every step of the run
   (``schedule="cosine"``; the last epoch is the one kept), or constant. A function of the step
   alone, so a resumed run takes the same steps;
