@@ -259,7 +259,7 @@ def test_fcn_weights_that_do_not_fit_are_refused(tmp_path: Path) -> None:
 def _resolve_slow(range_mm, sure, unsure):
     """Reference: pixel by pixel, the sure 8-neighbour nearest in range."""
     out = np.where(sure, range_mm, np.nan)
-    bs, hs, ws = range_mm.shape
+    hs, ws = range_mm.shape[1:]
     for b, y, x in zip(*np.nonzero(unsure), strict=True):
         best, dist = np.nan, np.inf
         for v in range(max(y - 1, 0), min(y + 2, hs)):
