@@ -113,6 +113,8 @@ def effect_visibility(frames_path: str | Path, label: dict[str, Any]) -> dict[st
     An effect scoring below the tool's threshold even at its true parameters cannot be named
     on the per-pixel score by any fit; the benchmark reports top-1 on the visible cases beside
     the whole. Run only when scoring (it reads the label)."""
+    if not label["effects"]:
+        return {}
     frames = load_frames(frames_path)
     camera = label.get("camera")
     truth, _ = adopt_recording(frames, truth_config(label["effects"], camera), keep_units=True)
