@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import sys
 from pathlib import Path
@@ -58,6 +59,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                        help="patch: G's hysteresis thresholds: chosen on the validation frames "
                             "by the full pipeline's boundary accuracy (default), or the "
                             "paper's 0.3 / 0.6")
+    train.add_argument("--val-split", choices=("session", "frame"), default="session",
+                       help="fcn: what the validation frames (and the sigma gain fitted on them) "
+                            "hold out: whole recording sessions, i.e. scenes (default: sigma is "
+                            "then calibrated on scenes the network has not seen, as it will be "
+                            "used; frames when there is one session), or single frames")
     train.add_argument("--seed", type=int, default=0)
     train.add_argument("--checkpoint-dir", type=Path, help="checkpoint after every epoch; "
                        "an interrupted run resumes from it")
@@ -116,6 +122,7 @@ def _train_fcn(args: argparse.Namespace, frames: list, calibration: Any
                ) -> tuple[Any, list[dict[str, Any]], dict[str, Any]]:
     """The fcn kind: (model, history, the summary entries of this kind)."""
     from ..errors import InputError
+    from ..evaluation.benchmark.split import session_groups
     from ..training.fcn_trainer import FCNTrainConfig, train_fcn
 
     clip = args.target_clip_mm
@@ -125,7 +132,14 @@ def _train_fcn(args: argparse.Namespace, frames: list, calibration: Any
     given = {"epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr,
              "crop_px": args.crop_px, "target_clip_mm": None if clip is None else clip[0]}
     config = FCNTrainConfig(**{k: v for k, v in given.items() if v is not None})
-    model, history = train_fcn(frames, calibration, config, seed=args.seed,
+    groups = (session_groups([f.stamp_ns for f in frames])
+              if args.val_split == "session" else None)
+    if groups is not None and len(set(groups)) < 2:
+        # one session cannot be held out whole without leaving nothing to train on
+        logging.getLogger(__name__).info("one recording session: validation frames are "
+                                         "held out one by one")
+        groups = None
+    model, history = train_fcn(frames, calibration, config, seed=args.seed, groups=groups,
                                checkpoint_dir=args.checkpoint_dir, weights_path=args.output,
                                overwrite=args.overwrite)
     return model, history, {"train_config": model.metadata.get("train_config"),
