@@ -10,7 +10,12 @@ from oracles.analytic_scenes import box_on_table_scene, raycast
 
 from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.mismatch import analyse
-from tof_mpd_ros.mismatch.analysis import UNITS_DOUBT, parameters_at_edge, within_camera_window
+from tof_mpd_ros.mismatch.analysis import (
+    UNITS_DOUBT,
+    parameters_at_edge,
+    veil_px,
+    within_camera_window,
+)
 from tof_mpd_ros.mismatch.fit import FitResult, free_params
 from tof_mpd_ros.mismatch.likelihood import best_shift
 from tof_mpd_ros.mismatch.predict import FramePredictor, noise_std_mm
@@ -20,6 +25,7 @@ from tof_mpd_ros.mismatch.profile import (
     adopt_recording,
     with_amplitude_units,
 )
+from tof_mpd_ros.mismatch.wording import phrase
 from tof_mpd_ros.sim.tof import ToFConfig, render_from_reference
 
 NOMINAL = ToFConfig.nominal()
@@ -93,6 +99,22 @@ def test_only_search_limits_count_as_edges(effect, params, edge):
     assert set(parameters_at_edge(result)) == edge
 
 
+@pytest.mark.parametrize("effect,sigma,shape,veiled", [
+    ("lens_scatter", 80.0, (72, 96), True),      # wider than the benchmark's frames
+    ("lens_scatter", 72.0, (72, 96), True),
+    ("lens_scatter", 50.0, (72, 96), False),     # a halo the frame resolves
+    ("lens_scatter", 80.0, (240, 320), False),   # the same width on the full sensor
+    ("subsurface", 80.0, (72, 96), False),
+])
+def test_a_halo_wider_than_the_frame_is_a_veil_not_a_lens(effect, sigma, shape, veiled):
+    result = FitResult(effect, NOMINAL, {"sigma_px": sigma, "fraction": 0.03}, 2)
+    found = veil_px(result, shape)
+    assert (found is not None) == veiled
+    if veiled:
+        why = phrase("unexplained_why", {"case": "veil", **found})
+        assert f"{sigma:.0f} px" in why and f"{shape[0]} px high" in why and "veil" in why
+
+
 FOREIGN = replace(NOMINAL.with_effect("noise_model", enabled=True, scale=0.5)
                   .with_effect("pixel_offset", offset_mean_mm=-3.0), mod_freq_hz=50e6)
 
@@ -164,6 +186,27 @@ def test_nothing_is_named_on_a_foreign_camera_with_nothing_missing(foreign):
     assert foreign.selected == []
     if "mixed_pixels" in foreign.profile:
         assert foreign.parameters["mixed_pixels"]["psf_sigma_px"] <= 0.6
+
+
+#: a camera with a fixed pattern of its own (another seed, 3 mm from pixel to pixel, no gain
+#: spread) and 3× less noise than the nominal cell
+PATTERNED = (NOMINAL.with_effect("noise_model", enabled=True, scale=0.33)
+             .with_effect("pixel_offset", seed=7, offset_std_mm=3.0, gain_std=0.0))
+
+
+def test_a_cameras_own_fixed_pattern_is_measured_not_read_as_noise(sweep):
+    """No seed reproduces another camera's pattern: the analysis estimates it from the
+    training frames and reports its size, and the noise law is found to be the camera's 3×
+    quieter one. (Without the estimate, the 3 mm of pattern passed for the nominal noise and
+    no noise law was fitted.)"""
+    result = analyse(sweep({}, camera=PATTERNED, amplitude_scale=3.0), max_effects=1)
+    # the pattern beyond the nominal one the config carries (2 mm, another seed): √(3² + 2²)
+    # if the profile keeps the nominal spread, 3 mm if it drops it
+    assert 2.4 <= result.profile_facts["pattern_rms_mm"] <= 3.9
+    assert any("fixed pattern" in w for w in result.profile_words)
+    noise = result.parameters["noise_model"]
+    assert 0.2 <= noise["scale"] <= 0.6 and noise["jitter_mm"] < 1.0
+    assert result.selected == []
 
 
 def test_calibrate_then_monitor_names_only_what_changed(foreign, sweep):

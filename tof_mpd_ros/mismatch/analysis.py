@@ -26,6 +26,7 @@ from .fit import (
     CANDIDATES,
     FitResult,
     Problem,
+    camera_moves,
     fit_effect,
     free_params,
     plain_params,
@@ -102,7 +103,8 @@ class Analysis:
         workflow: ``"one-shot"`` (no config given: the camera's profile is fitted first) or
             ``"monitor"`` (a config from an earlier run: only what changed since).
         profile: profile effects fitted in the one-shot workflow, strongest first.
-        profile_facts: what the recording states and the amplitude units chosen
+        profile_facts: what the recording states, the amplitude units chosen and the RMS of the
+            camera's fixed pattern (``pattern_rms_mm``)
             (:func:`.profile.adopt_recording`).
         profile_words: the camera's profile in words, relative to the nominal cell.
         unexplained: candidates that fitted best but are not taken, with why (a parameter at
@@ -247,6 +249,13 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
     predictors = problem.predictors
     residual0, sigma0 = _residuals(problem, None)
     location = locate(descriptors, residual0, sigma0)
+    # the camera's own fixed pattern is projected out of every model from here on: no seed
+    # of the simulator reproduces another camera's, and left in the residual it would be read
+    # as noise (an inflated noise law hides every effect on top) or as a scene effect. Only
+    # when the arm moves: at one pose every misfit of the scene sits at the same pixels in
+    # every frame, and a pattern cannot be told from it (measured on a still control: 12 mm
+    # of "pattern" for the camera's 2)
+    problem = problem.judged(free_pattern=camera_moves(problem.predictors))
 
     search = _Search(problem, descriptors, location, min_score, min_t, progress,
                      units_assumed=not monitor)
@@ -263,6 +272,8 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
     profile = [e for e in profile if e not in selected]
     # what the physics on top took back from the camera's profile leaves it where it was
     profile = search.confirm(profile, base)
+    pattern = search.problem.fixed_pattern(None)
+    facts = {**facts, "pattern_rms_mm": 0.0 if pattern is None else pattern.rms_mm}
     if ALBEDO_EFFECT in profile:
         facts = {**facts, **albedo_from_interreflection(
             facts, float(search.problem.base.params(ALBEDO_EFFECT)["gain"]))}
@@ -312,7 +323,7 @@ def _camera_first(search: _Search, candidates: Sequence[str]) -> tuple[list[str]
     own = [c for c in candidates if c in PROFILE_EFFECTS]
     profile = search.greedy(own, len(own))
     # the camera's level stays a free profile parameter while physics is named on top
-    search.problem = replace(search.problem, free_level=True, _base_cost={}, _level=None)
+    search.problem = search.problem.judged(free_level=True)
     search.refit = profile
     # what the camera has its own value of within a window (the scene's albedo, known only
     # within the grey world's doubt, sets the interreflection's strength; the lens its blur)
@@ -434,6 +445,14 @@ class _Search:
                         "low": lo, "high": hi, **CAMERA_WINDOW_REASONS[r.effect]}),
                     "where": self.location.get("flagged", [])[:3]})
                 continue
+            veil = veil_px(r, self.problem.real_mm[0].shape)
+            if veil is not None:
+                self.unexplained.append({
+                    "round": k + 1, "effect": r.effect, "score": round(r.score, 3),
+                    "parameters_at_edge": {},
+                    "why": phrase("unexplained_why", {"case": "veil", **veil}),
+                    "where": self.location.get("flagged", [])[:3]})
+                continue
             edge = parameters_at_edge(r)
             if not edge:
                 return r
@@ -493,14 +512,13 @@ class _Search:
                                                 name: given.effects[name]})
             # judged at the given level: a free level would hide a changed offset; but what was
             # fitted with the level free (the camera's windows) is judged so again
-            trial = replace(_rebased(self.problem, without),
-                            free_level=name in self.profile_boxes)
+            trial = _rebased(self.problem, without).judged(
+                free_level=name in self.profile_boxes)
             back = score_fit(trial, FitResult(name, current, {}, len(free_params(name))))
             if _significant(back, self.min_score, self.min_t):
                 kept.append(name)
             else:
-                self.problem = replace(trial, free_level=self.problem.free_level,
-                                       _base_cost={}, _level=None)
+                self.problem = trial.judged(free_level=self.problem.free_level)
         return kept
 
     def _away_from_edge(self, result: FitResult, edge: dict[str, float]) -> FitResult | None:
@@ -532,23 +550,31 @@ class _Search:
         halo's fraction then climbs a little each sweep (measured: 0.016 → 0.024 over six)."""
         if result.note or not self.refit:
             return result
-        config = result.config
+        config, _ = self._descend(result.config, result.effect, box)
+        if config is result.config:
+            return result
+        base_cost = self._train_cost(self.problem.base)
+        refitted = FitResult(result.effect, config, plain_params(config, result.effect),
+                             result.n_params, train_gain=base_cost - self._train_cost(config))
+        return score_fit(self.problem, refitted)
+
+    def _descend(self, config: ToFConfig, effect: str,
+                 box: Sequence[tuple[float, float]] | None) -> tuple[ToFConfig, float]:
+        """Coordinate descent from ``config`` (:meth:`_sweep`s while one gains at least
+        ``REFIT_TOL`` per training pixel, at most ``REFIT_SWEEPS``): the model reached and its
+        training cost."""
         cost = self._train_cost(config)
         for _ in range(REFIT_SWEEPS):
-            swept = self._sweep(config, result.effect, box)
+            swept = self._sweep(config, effect, box)
             if swept is config:
                 break
             swept_cost = self._train_cost(swept)
             if swept_cost > cost - REFIT_TOL:
                 if swept_cost < cost:
-                    config = swept
+                    config, cost = swept, swept_cost
                 break
             config, cost = swept, swept_cost
-        if config is result.config:
-            return result
-        refitted = FitResult(result.effect, config, plain_params(config, result.effect),
-                             result.n_params, train_gain=result.train_gain)
-        return score_fit(self.problem, refitted)
+        return config, cost
 
     def _sweep(self, config: ToFConfig, effect: str,
                box: Sequence[tuple[float, float]] | None) -> ToFConfig:
@@ -583,7 +609,7 @@ def _rebased(p: Problem, config: ToFConfig) -> Problem:
     usable = [u & np.isfinite(q.predict().range_mm)
               for u, q in zip(p.usable, rebased, strict=True)]
     return Problem(p.real_mm, rebased, p.split, usable, p.reference_noise_mm, p.edge_jump_mm,
-                   free_level=p.free_level)
+                   free_level=p.free_level, free_pattern=p.free_pattern)
 
 
 #: the multipath gains the unknown amplitude units explain alone when they were assumed
@@ -606,6 +632,19 @@ def window_box(effect: str) -> list[tuple[float, float]]:
     param, lo, hi = CAMERA_WINDOWS[effect]
     return [(p.unit(lo), p.unit(hi)) if p.name == param else (0.0, 1.0)
             for p in free_params(effect)]
+
+
+def veil_px(result: FitResult, shape: tuple[int, int]) -> dict[str, float] | None:
+    """A lens halo at least as wide as the frame's short side: its kernel's weight varies by
+    less than e^(-1/2) over the frame, so the glare it adds is a near-uniform veil of the
+    scene's mean phasor, and a veil is what any global light the model lacks (interreflection
+    a path tracer's glossy parts send, ambient light) adds too. Such a fit names no lens: the
+    width that makes a halo a lens's signature is not resolved. Returns the facts the
+    template words (``sigma_px``, ``short_side_px``), or None."""
+    if result.effect != "lens_scatter" or "sigma_px" not in result.parameters:
+        return None
+    sigma, short = float(result.parameters["sigma_px"]), int(min(shape))
+    return {"sigma_px": sigma, "short_side_px": short} if sigma >= short else None
 
 
 #: a fitted parameter within this fraction of its range from an edge sits at the edge
@@ -641,7 +680,7 @@ def _residuals(problem: Problem, config: ToFConfig | None,
     res, sig = [], []
     for i in idx:
         pred = problem.predictors[i].predict(config)
-        r = np.where(problem.usable[i], problem.real_mm[i] - pred.range_mm, np.nan)
+        r = np.where(problem.usable[i], problem.residual(i, config), np.nan)
         res.append(r)
         sig.append(total_sigma(pred.noise_mm, problem.reference_noise_mm))
     return res, sig
@@ -714,11 +753,11 @@ def evidence_facts(problem: Problem, result: FitResult,
     res, sig, corr, desc = [], [], [], {n: [] for n in DESCRIPTORS}
     for i in test:
         before = problem.predictors[i].predict()
-        after = problem.predictors[i].predict(result.config)
-        m = masks[i] & np.isfinite(after.range_mm)
-        res.append((problem.real_mm[i] - before.range_mm)[m])
+        after = problem.model_range(i, result.config)
+        m = masks[i] & np.isfinite(after)
+        res.append(problem.residual(i, None)[m])
         sig.append(total_sigma(before.noise_mm, problem.reference_noise_mm)[m])
-        corr.append((after.range_mm - before.range_mm)[m])
+        corr.append((after - problem.model_range(i, None))[m])
         for n in DESCRIPTORS:
             desc[n].append(descriptors[i][n][m])
     if not res or sum(x.size for x in res) < 10:

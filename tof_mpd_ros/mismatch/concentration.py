@@ -145,13 +145,12 @@ def group_levels(problem: Problem, config: ToFConfig,
     """The held-out pixel groups' levels where ``config`` (a fitted candidate) changes the
     current model's prediction most (``share``: see :func:`large_cut`); None without held-out
     frames or large corrections."""
-    shift_before, shift_after = problem.level(None), problem.level(config)
     masks = problem.masks("test")
     frames = problem.frames_of("test")
     corrections = []
     for i in frames:
-        before = problem.predictors[i].predict(None).range_mm + shift_before
-        after = problem.predictors[i].predict(config).range_mm + shift_after
+        before = problem.model_range(i, None)
+        after = problem.model_range(i, config)
         corrections.append(np.where(masks[i], after - before, np.nan))
     if not corrections:
         return None
@@ -161,7 +160,7 @@ def group_levels(problem: Problem, config: ToFConfig,
     for i, c in zip(frames, corrections, strict=True):
         large = np.isfinite(c) & (np.abs(c) >= cut)
         pixels += int(large.sum())
-        rows += _frame_groups(problem, i, config, c, large, (shift_before, shift_after))
+        rows += _frame_groups(problem, i, config, c, large)
     if not rows:
         return None
     before, after, se, corr = zip(*rows, strict=True)
@@ -169,14 +168,12 @@ def group_levels(problem: Problem, config: ToFConfig,
 
 
 def _frame_groups(problem: Problem, i: int, config: ToFConfig, correction: np.ndarray,
-                  large: np.ndarray, shifts: tuple[float, float]
-                  ) -> list[tuple[float, float, float, float]]:
+                  large: np.ndarray) -> list[tuple[float, float, float, float]]:
     """Per group of frame ``i``'s ``large`` pixels ((H, W) bool): (level before, level after,
     standard error, mean correction), in mm."""
     before = problem.predictors[i].predict(None)
-    after = problem.predictors[i].predict(config)
-    r_before = problem.real_mm[i] - before.range_mm - shifts[0]
-    r_after = problem.real_mm[i] - after.range_mm - shifts[1]
+    r_before = problem.residual(i, None)
+    r_after = problem.residual(i, config)
     sigma = total_sigma(before.noise_mm, problem.reference_noise_mm)
     ids = group_ids(large.shape, correction)
     rows = []

@@ -15,11 +15,11 @@ pixel (millinats) minus a BIC-like cost per parameter, with a tile t-statistic f
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from scipy import optimize
+from scipy import ndimage, optimize
 
 from ..sim.tof import EFFECTS, ToFConfig
 from .data import Split
@@ -123,6 +123,113 @@ def plain_params(config: ToFConfig, effect: str) -> dict[str, Any]:
     return out
 
 
+#: the camera's fixed pattern is what varies from pixel to pixel: each frame's residual less
+#: its local mean over a Gaussian of this σ (px), so the smooth residual a scene effect leaves
+#: (a halo, interreflection, a wiggle over the range) stays for the effects to explain
+PATTERN_SMOOTH_PX = 2.0
+#: a frame's high-passed residual beyond this many times its robust spread (flying pixels, the
+#: reference's edge errors) is clipped before it is averaged into the pattern
+PATTERN_CLIP = 4.0
+#: pixels this close to a reference depth edge (px) do not inform the pattern
+PATTERN_EDGE_PX = 2
+
+
+@dataclass(frozen=True)
+class FixedPattern:
+    """The camera's fixed pattern of per-pixel range offsets, estimated from training frames.
+
+    Attributes:
+        rms_mm: the pattern's estimated pixel-to-pixel std τ, mm.
+        full: (H, W) float64 pattern from every training frame, mm (a held-out frame's).
+        leave_one_out: training frame index -> (H, W) float64 pattern from the other training
+            frames, mm (so a fit is not judged on the noise of its own frame's pixels).
+    """
+
+    rms_mm: float
+    full: np.ndarray
+    leave_one_out: dict[int, np.ndarray]
+
+    def of_frame(self, i: int) -> np.ndarray:
+        return self.leave_one_out.get(i, self.full)
+
+
+def _high_pass(residual: np.ndarray, sigma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A frame's residual less its local mean (normalised Gaussian convolution over the
+    usable pixels, weights 1/σ²), clipped at ``PATTERN_CLIP`` robust spreads; and the
+    weights (0 where unusable). Both (H, W) float64."""
+    ok = np.isfinite(residual) & np.isfinite(sigma) & (sigma > 0)
+    w = np.where(ok, 1.0 / np.where(ok, sigma, 1.0) ** 2, 0.0)
+    r = np.where(ok, residual, 0.0)
+    local = (ndimage.gaussian_filter(w * r, PATTERN_SMOOTH_PX, mode="nearest")
+             / np.maximum(ndimage.gaussian_filter(w, PATTERN_SMOOTH_PX, mode="nearest"),
+                          1e-300))
+    d = np.where(ok, r - local, 0.0)
+    if ok.any():
+        z = d[ok] * np.sqrt(w[ok])
+        spread = max(1.4826 * float(np.median(np.abs(z))), 1.0)
+        bound = PATTERN_CLIP * spread / np.sqrt(np.where(ok, w, 1.0))
+        d = np.clip(d, -bound, bound)
+    return d, w
+
+
+def fixed_pattern(frames: Sequence[int], residuals: Sequence[np.ndarray],
+                  sigmas: Sequence[np.ndarray]) -> FixedPattern:
+    """Empirical-Bayes estimate of a fixed pattern of per-pixel offsets from residuals of
+    several frames of one camera.
+
+    Each frame's residual less its local mean (:func:`_high_pass`) is averaged per pixel with
+    weights 1/σ²: the raw estimate. The pattern's variance τ² is the mean product of two
+    frames' residuals at the same pixel (a fixed pattern is in both, the noise of one frame is
+    not in the other), and the noise's variance is κσ², κ measured on the same residuals, so
+    neither leans on the noise law being right (the analysis fits it with the pattern
+    projected out; judged by its own σ, a noise law 2.5× too low passed its excess off as
+    pattern). Each pixel's estimate is shrunk by τ² / (τ² + v), v = κ / Σ 1/σ²: a pixel seen
+    by few or noisy samples keeps little, a camera with no pattern gets none. Why high-pass: a
+    fixed pattern is white from pixel to pixel, whereas what a scene effect leaves is smooth
+    over many pixels and, as the arm moves, moves across them; what is left of it after the
+    local mean averages out over frames seen from other poses.
+
+    Args:
+        frames: the frames' indices (keys of ``leave_one_out``).
+        residuals: per frame, (H, W) float64 residual in mm (NaN = not used).
+        sigmas: per frame, (H, W) float64 residual std in mm.
+    """
+    parts = [_high_pass(r, sig) for r, sig in zip(residuals, sigmas, strict=True)]
+    tau2 = _pattern_variance([d for d, _ in parts], [w > 0 for _, w in parts])
+    seen_any = [w > 0 for _, w in parts]
+    n_seen = sum(int(m.sum()) for m in seen_any)
+    # κ: the residuals' noise variance relative to the model's σ², beyond the pattern's
+    kappa = (sum(float(np.sum((d ** 2 - tau2) * w)) for d, w in parts) / n_seen
+             if n_seen else 1.0)
+    kappa = max(kappa, 1e-6)
+    sums = [w * d for d, w in parts]
+    total_s = np.sum(sums, axis=0)
+    total_w = np.sum([w for _, w in parts], axis=0)
+
+    def shrunk(s_sum: np.ndarray, w_sum: np.ndarray) -> np.ndarray:
+        seen = w_sum > 0
+        if tau2 <= 0.0 or not seen.any():
+            return np.zeros_like(s_sum)
+        safe = np.where(seen, w_sum, 1.0)
+        return np.where(seen, (s_sum / safe) * tau2 / (tau2 + kappa / safe), 0.0)
+
+    loo = {f: shrunk(total_s - s_f, total_w - w)
+           for f, s_f, (_, w) in zip(frames, sums, parts, strict=True)}
+    return FixedPattern(float(np.sqrt(tau2)), shrunk(total_s, total_w), loo)
+
+
+def _pattern_variance(highs: Sequence[np.ndarray], seen: Sequence[np.ndarray]) -> float:
+    """τ²: the mean product of two frames' high-passed residuals over the pixels both see,
+    over every pair of frames (0 when negative or without a pair)."""
+    total, count = 0.0, 0
+    for f in range(len(highs)):
+        for g in range(f + 1, len(highs)):
+            both = seen[f] & seen[g]
+            total += float(np.sum(highs[f][both] * highs[g][both]))
+            count += int(both.sum())
+    return max(total / count, 0.0) if count else 0.0
+
+
 @dataclass
 class Problem:
     """Frames, their predictors and the split: everything a fit and a score need.
@@ -138,6 +245,11 @@ class Problem:
             level, a profile parameter), found on the training pixels: a candidate is not
             scored on what a level change alone would give, nor held to a level the profile
             set while the candidate's physics was missing (variable projection).
+        free_pattern: every model is judged with the camera's own fixed pattern of per-pixel
+            offsets projected out as well (:func:`fixed_pattern`, estimated on the training
+            frames; a training frame's own from the other training frames): a camera that is
+            not the nominal cell has a pattern of its own that no seed reproduces, and left in
+            the residual it inflates the fitted noise law and hides every effect on top.
     """
 
     real_mm: list[np.ndarray]
@@ -147,12 +259,23 @@ class Problem:
     reference_noise_mm: float = REFERENCE_NOISE_MM
     edge_jump_mm: list[np.ndarray] | None = None
     free_level: bool = False
+    free_pattern: bool = False
     _base_cost: dict[int, np.ndarray] = field(default_factory=dict)
     _level: tuple[Any, float] | None = None
+    _pattern: tuple[Any, FixedPattern | None] | None = None
 
     @property
     def base(self) -> ToFConfig:
         return self.predictors[0].base
+
+    def judged(self, *, free_level: bool | None = None,
+               free_pattern: bool | None = None) -> Problem:
+        """This problem with the level and the fixed pattern free or not (None = as now),
+        with caches of its own: what a model costs depends on both."""
+        return replace(self, free_level=self.free_level if free_level is None else free_level,
+                       free_pattern=(self.free_pattern if free_pattern is None
+                                     else free_pattern),
+                       _base_cost={}, _level=None, _pattern=None)
 
     def masks(self, which: str) -> list[np.ndarray]:
         part = self.split.train if which == "train" else self.split.test
@@ -165,12 +288,50 @@ class Problem:
         """(H, W) per-pixel cost of frame ``i`` under ``config`` (None = base); pixels the
         candidate leaves unpredicted keep their base cost, so dropping pixels gains nothing."""
         if i not in self._base_cost:
-            self._base_cost[i] = self._raw_cost(self.predictors[i].predict(), i,
-                                                self.level(None))
+            self._base_cost[i] = self._raw_cost(i, None)
         if config is None:
             return self._base_cost[i]
-        cost = self._raw_cost(self.predictors[i].predict(config), i, self.level(config))
+        cost = self._raw_cost(i, config)
         return np.where(np.isfinite(cost), cost, self._base_cost[i])
+
+    def model_range(self, i: int, config: ToFConfig | None) -> np.ndarray:
+        """(H, W) float64 range (mm) the model ``config`` (None = base) predicts for frame
+        ``i`` as it is judged: its prediction, plus the level and the camera's fixed pattern
+        when they are free (:meth:`level`, :meth:`pattern`)."""
+        return (self.predictors[i].predict(config).range_mm + self.level(config)
+                + self.pattern(i, config))
+
+    def residual(self, i: int, config: ToFConfig | None) -> np.ndarray:
+        """(H, W) float64 real − :meth:`model_range`, mm (NaN where either is missing)."""
+        return self.real_mm[i] - self.model_range(i, config)
+
+    def pattern(self, i: int, config: ToFConfig | None) -> np.ndarray | float:
+        """The camera's fixed pattern (mm) that frame ``i`` is judged with under ``config``:
+        0 unless ``free_pattern``; a training frame's from the other training frames, a
+        held-out frame's from all of them (cached for the last config)."""
+        found = self.fixed_pattern(config)
+        return 0.0 if found is None else found.of_frame(i)
+
+    def fixed_pattern(self, config: ToFConfig | None) -> FixedPattern | None:
+        """The camera's fixed pattern under ``config`` (None without ``free_pattern`` or with
+        fewer than two training frames)."""
+        if not self.free_pattern:
+            return None
+        if self._pattern is not None and self._pattern[0] is config:
+            return self._pattern[1]
+        train = [i for i in self.frames_of("train") if not self.masks("test")[i].any()]
+        found = None
+        if len(train) >= 2:
+            shift = self.level(config)
+            res, sig = [], []
+            for i in train:
+                pred = self.predictors[i].predict(config)
+                res.append(np.where(self.masks("train")[i] & ~self._near_edge(i),
+                                    self.real_mm[i] - pred.range_mm - shift, np.nan))
+                sig.append(self._sigma(pred, i))
+            found = fixed_pattern(train, res, sig)
+        self._pattern = (config, found)
+        return found
 
     def level(self, config: ToFConfig | None) -> float:
         """The constant range offset (mm) that ``config`` is judged at: 0, or with
@@ -189,12 +350,20 @@ class Problem:
         self._level = (config, shift)
         return shift
 
+    def _near_edge(self, i: int) -> np.ndarray:
+        """(H, W) bool pixels of frame ``i`` within ``PATTERN_EDGE_PX`` of a reference depth
+        edge: the reference's own edge errors, not the camera's pattern, dominate there."""
+        if self.edge_jump_mm is None:
+            return np.zeros(self.real_mm[i].shape, bool)
+        return ndimage.binary_dilation(self.edge_jump_mm[i] > 0, iterations=PATTERN_EDGE_PX)
+
     def _sigma(self, pred: Prediction, i: int) -> np.ndarray:
         jump = 0.0 if self.edge_jump_mm is None else self.edge_jump_mm[i]
         return total_sigma(pred.noise_mm, self.reference_noise_mm, jump)
 
-    def _raw_cost(self, pred: Prediction, i: int, shift: float = 0.0) -> np.ndarray:
-        return nll(self.real_mm[i] - pred.range_mm - shift, self._sigma(pred, i))
+    def _raw_cost(self, i: int, config: ToFConfig | None) -> np.ndarray:
+        pred = self.predictors[i].predict(config)
+        return nll(self.residual(i, config), self._sigma(pred, i))
 
     def frame_level(self, i: int, config: ToFConfig | None, which: str = "test"
                     ) -> tuple[float, float]:
@@ -208,7 +377,7 @@ class Problem:
         correlated)."""
         m = self.masks(which)[i]
         pred = self.predictors[i].predict(config)
-        r = (self.real_mm[i] - pred.range_mm)[m]
+        r = (self.real_mm[i] - pred.range_mm - self.pattern(i, config))[m]
         ok = np.isfinite(r)
         if not ok.any():
             return float("nan"), float("nan")

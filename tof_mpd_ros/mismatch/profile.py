@@ -201,6 +201,8 @@ def profile_items(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any],
     * ``"frequency"``: ``mod_freq_hz``, ``from_recording``;
     * ``"units"`` (only when the amplitude units are not the simulator's): ``scale``,
       ``grey_world`` (the assumed median albedo);
+    * ``"pattern"`` (only when one was found, fact ``pattern_rms_mm``): ``rms_mm``, the
+      camera's fixed pattern of per-pixel offsets (:func:`.fit.fixed_pattern`);
     * ``"albedo"`` (for :data:`ALBEDO_EFFECT` when its gain was read as the scene's albedo):
       ``gain``, ``albedo_scale``, ``units_scale``, ``grey_world``;
     * every other effect of ``effects`` by name: its ``fitted`` and ``nominal`` parameters
@@ -211,6 +213,8 @@ def profile_items(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any],
     k = facts.get("amplitude_scale", 1.0)
     if k != 1.0:
         items.append({"kind": "units", "scale": k, "grey_world": GREY_WORLD_ALBEDO})
+    if facts.get("pattern_rms_mm", 0.0) > 0.0:
+        items.append({"kind": "pattern", "rms_mm": facts["pattern_rms_mm"]})
     for name in effects:
         p = _numbers(fitted.params(name))
         if name == ALBEDO_EFFECT and "albedo_scale" in facts:
