@@ -61,8 +61,10 @@ def test_noise_the_model_under_states_is_not_read_as_a_pattern():
     truth, res, sig = _frames(np.random.default_rng(5), pattern_mm=3.0, noise_mm=2.5)
     found = fixed_pattern([0, 2, 4], res, [s / 2.5 for s in sig])
     assert found.rms_mm == pytest.approx(3.0, rel=0.1)
-    # shrunk by the noise it really has (v = 6.25 / 3): std τ² / √(τ² + v)
+    # shrunk by the noise it really has (v = 6.25 / 3): std τ² / √(τ² + v), and following
+    # the truth as that shrinkage allows (correlation τ / √(τ² + v) = 0.90)
     assert np.std(found.full) == pytest.approx(9 / np.sqrt(9 + 6.25 / 3), rel=0.05)
+    assert _corr(found.full, truth) == pytest.approx(3 / np.sqrt(9 + 6.25 / 3), abs=0.03)
 
 
 def test_smooth_residual_is_left_for_the_effects():

@@ -195,13 +195,12 @@ def fixed_pattern(frames: Sequence[int], residuals: Sequence[np.ndarray],
         sigmas: per frame, (H, W) float64 residual std in mm.
     """
     parts = [_high_pass(r, sig) for r, sig in zip(residuals, sigmas, strict=True)]
-    tau2 = _pattern_variance([d for d, _ in parts], [w > 0 for _, w in parts])
-    seen_any = [w > 0 for _, w in parts]
-    n_seen = sum(int(m.sum()) for m in seen_any)
-    # κ: the residuals' noise variance relative to the model's σ², beyond the pattern's
-    kappa = (sum(float(np.sum((d ** 2 - tau2) * w)) for d, w in parts) / n_seen
-             if n_seen else 1.0)
-    kappa = max(kappa, 1e-6)
+    seen = [w > 0 for _, w in parts]
+    tau2 = _pattern_variance([d for d, _ in parts], seen)
+    n_seen = sum(int(m.sum()) for m in seen)
+    # κ: the residuals' noise variance beyond the pattern's, relative to the model's σ²
+    kappa = max(sum(float(np.sum((d ** 2 - tau2) * w)) for d, w in parts) / max(n_seen, 1),
+                1e-6)
     sums = [w * d for d, w in parts]
     total_s = np.sum(sums, axis=0)
     total_w = np.sum([w for _, w in parts], axis=0)
