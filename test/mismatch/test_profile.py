@@ -298,3 +298,25 @@ def test_a_profile_effect_winning_a_scene_round_joins_the_profile(sweep, problem
     # without the rejoin, the wiggle would have been named
     plain = analysis._Search(problem, descriptors, {}, 15.0, 3.0, None)
     assert plain.greedy(["lens_scatter", "hand_eye", "wiggling"], 1) == ["wiggling"]
+
+
+def test_a_profile_value_at_the_edge_of_its_range_is_reported(sweep, problem_of):
+    """A camera's own value does not sit at a search limit: a profile whose wiggle ended at
+    20 mm (the top of its range) is reported as standing in for something the model lacks;
+    one inside its range is not; nothing is named on that basis."""
+    from tof_mpd_ros.mismatch import analysis
+    from tof_mpd_ros.mismatch.features import all_descriptors
+
+    frames = sweep({})
+    for a1, flagged in ((20.0, True), (6.0, False)):
+        config = NOMINAL.with_effect("wiggling", a1_mm=a1)
+        problem = problem_of(frames, config)
+        descriptors = all_descriptors(problem.predictors,
+                                      [p.motion for p in problem.predictors])
+        search = analysis._Search(problem, descriptors, {"flagged": []}, 15.0, 3.0, None)
+        search.flag_profile_edges(["wiggling", "pixel_offset"])
+        cases = [(u["effect"], u["case"], u["parameters_at_edge"]) for u in search.unexplained]
+        assert cases == ([("wiggling", "profile_edge", {"a1_mm": 20.0})] if flagged else [])
+        if flagged:
+            assert "stands in for something the model lacks" in search.unexplained[0]["why"]
+        assert search.taken == []

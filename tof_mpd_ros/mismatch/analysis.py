@@ -107,9 +107,11 @@ class Analysis:
             camera's fixed pattern (``pattern_rms_mm``)
             (:func:`.profile.adopt_recording`).
         profile_words: the camera's profile in words, relative to the nominal cell.
-        unexplained: candidates that fitted best but are not taken, with why (a parameter at
-            the edge of its range: the model does not explain this) and where the residual
-            sits.
+        unexplained: candidates that fitted best but are not taken, with why (``case``: a
+            parameter at the ``"edge"`` of its range, the model does not explain this; a fit
+            inside the ``"camera_window"``; a halo as wide as the frame, a ``"veil"``), and
+            profile effects that ended at the edge of their range (``"profile_edge"``), each
+            with where the residual sits.
         frame_levels: "round:effect" -> the held-out frames' residual levels before and after
             a candidate of one offset per frame, judged on them (:mod:`.frame_levels`).
         concentration: "round:effect" -> the held-out residual where a concentrated
@@ -271,6 +273,7 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
     profile = search.confirm(profile, base)
     if not monitor and moving and "noise_model" in candidates:
         profile = search.measure_pattern(profile)
+    search.flag_profile_edges(profile)
     pattern = search.problem.fixed_pattern(None)
     facts = {**facts, "pattern_rms_mm": 0.0 if pattern is None else pattern.rms_mm}
     if ALBEDO_EFFECT in profile:
@@ -437,8 +440,8 @@ class _Search:
             if self.units_assumed and r.effect not in boxed and within_camera_window(r):
                 param, lo, hi = CAMERA_WINDOWS[r.effect]
                 self.unexplained.append({
-                    "round": k + 1, "effect": r.effect, "score": round(r.score, 3),
-                    "parameters_at_edge": {},
+                    "round": k + 1, "effect": r.effect, "case": "camera_window",
+                    "score": round(r.score, 3), "parameters_at_edge": {},
                     "why": phrase("unexplained_why", {
                         "case": "camera_window", "param": param, "value": r.parameters[param],
                         "low": lo, "high": hi, **CAMERA_WINDOW_REASONS[r.effect]}),
@@ -447,8 +450,8 @@ class _Search:
             veil = veil_px(r, self.problem.real_mm[0].shape)
             if veil is not None:
                 self.unexplained.append({
-                    "round": k + 1, "effect": r.effect, "score": round(r.score, 3),
-                    "parameters_at_edge": {},
+                    "round": k + 1, "effect": r.effect, "case": "veil",
+                    "score": round(r.score, 3), "parameters_at_edge": {},
                     "why": phrase("unexplained_why", {"case": "veil", **veil}),
                     "where": self.location.get("flagged", [])[:3]})
                 continue
@@ -459,7 +462,7 @@ class _Search:
             if inner is not None:
                 return inner
             self.unexplained.append({
-                "round": k + 1, "effect": r.effect, "score": round(r.score, 3),
+                "round": k + 1, "effect": r.effect, "case": "edge", "score": round(r.score, 3),
                 "parameters_at_edge": edge,
                 "why": phrase("unexplained_why", {"case": "edge"}),
                 "where": self.location.get("flagged", [])[:3]})
@@ -519,6 +522,24 @@ class _Search:
             else:
                 self.problem = trial.judged(free_level=self.problem.free_level)
         return kept
+
+    def flag_profile_edges(self, profile: list[str]) -> None:
+        """Report (``unexplained``, case ``"profile_edge"``) every profile effect whose final
+        value sits at the edge of its realistic range (:func:`parameters_at_edge`): the refits
+        beside the scene candidates may push the profile there, and a camera's own value does
+        not sit at a search limit (issue 13, item 2: misspecification is evidence). Measured
+        in session 15: in 3 of 6 visible misses a halo or misregistration had been absorbed by
+        a wiggle or an amplitude bias at its edge."""
+        final = self.problem.base
+        for name in profile:
+            fitted = FitResult(name, final, plain_params(final, name), len(free_params(name)))
+            edge = parameters_at_edge(fitted)
+            if edge:
+                self.unexplained.append({
+                    "round": None, "effect": name, "case": "profile_edge", "score": None,
+                    "parameters_at_edge": edge,
+                    "why": phrase("unexplained_why", {"case": "profile_edge"}),
+                    "where": self.location.get("flagged", [])[:3]})
 
     def measure_pattern(self, profile: list[str]) -> list[str]:
         """One-shot, once the effects are named: the camera's fixed pattern is projected out
