@@ -525,7 +525,7 @@ class _Search:
 
     def flag_profile_edges(self, profile: list[str]) -> None:
         """Report (``unexplained``, case ``"profile_edge"``) every profile effect whose final
-        value sits at the edge of its realistic range (:func:`parameters_at_edge`): the refits
+        value sits at a limit of its realistic range (:func:`parameters_at_edge`): the refits
         beside the scene candidates may push the profile there, and a camera's own value does
         not sit at a search limit (issue 13, item 2: misspecification is evidence). Measured
         in session 15: in 3 of 6 visible misses a halo or misregistration had been absorbed by
