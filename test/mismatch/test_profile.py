@@ -23,6 +23,7 @@ from tof_mpd_ros.mismatch.profile import (
     ALBEDO_DOUBT,
     ALBEDO_EXPONENT,
     adopt_recording,
+    describe_profile,
     with_amplitude_units,
 )
 from tof_mpd_ros.mismatch.wording import phrase
@@ -320,3 +321,17 @@ def test_a_profile_value_at_the_edge_of_its_range_is_reported(sweep, problem_of)
         if flagged:
             assert "stands in for something the model lacks" in search.unexplained[0]["why"]
         assert search.taken == []
+
+
+@pytest.mark.parametrize("gain_std,words", [(1e-17, "gain spread 0.00 %"),
+                                            (0.0123, "gain spread 1.23 %")])
+def test_the_pixel_gain_spread_reads_in_hundredths_of_a_percent(gain_std, words):
+    """A fit that drove the spread to zero reads 0.00 %, not a float's last bits (1.3e-15 %
+    was printed for the ADI camera)."""
+    nominal = ToFConfig.nominal()
+    fitted = nominal.with_effect("pixel_offset", offset_mean_mm=3.3, offset_std_mm=0.0,
+                                 gain_std=gain_std)
+    text = " | ".join(describe_profile(nominal, fitted, {"mod_freq_hz": 30e6,
+                                                         "amplitude_scale": 1.0},
+                                       ["pixel_offset"]))
+    assert words in text
