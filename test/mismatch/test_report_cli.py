@@ -239,3 +239,46 @@ def test_top1_on_visible_and_faint_cases_apart():
     assert s["visible_effect_cases"] == 2
     assert s["top1_accuracy_visible_effect_cases"] == 0.5
     assert s["top1_accuracy_faint_effect_cases"] == 0.0
+
+
+def test_benchmark_shards_share_one_plan_and_merge_into_it(tmp_path, monkeypatch):
+    """Two shards of one plan make every case once between them (each case from its own seed,
+    whatever its shard), and --merge scores them as one benchmark."""
+    from tof_mpd_ros.mismatch import benchmark as bm
+    from tof_mpd_ros.sim.dataset import Shard
+
+    made = []
+    metrics = {"rmse_before_mm": 10.0, "rmse_after_mm": 8.0,
+               "interior_excess_rmse_before_mm": 4.0, "interior_excess_rmse_after_mm": 2.0}
+
+    def generate(out, i, effects, seed, n_frames, base):
+        made.append((out.name, i, effects))
+        return {"case": i, "file": f"cases/case_{i:03d}.npz", "base": base,
+                "effects": [{"name": n, "params": {}} for n in effects]}
+
+    monkeypatch.setattr(bm, "_generate_one", generate)
+    monkeypatch.setattr(bm, "load_frames", lambda path: path)
+    monkeypatch.setattr(bm, "analyse", lambda path: path)
+    monkeypatch.setattr(bm, "to_json", lambda res: {"selected": [], "parameters": {},
+                                                    "metrics": metrics,
+                                                    "location": {"global": {}},
+                                                    "camera_profile": {"effects": []}})
+    monkeypatch.setattr(bm, "oracle_metrics", lambda path, label: dict(metrics))
+    monkeypatch.setattr(bm, "effect_visibility", lambda path, label: {})
+    a = bm.run_benchmark(5, seed=3, out_dir=tmp_path / "a", shard=Shard(0, 2))
+    b = bm.run_benchmark(5, seed=3, out_dir=tmp_path / "b", shard=Shard(1, 2))
+    assert [i for d, i, _ in made if d == "a"] == [0, 2, 4]
+    assert [i for d, i, _ in made if d == "b"] == [1, 3]
+    plan = bm.case_plan(5, 3, "nominal")
+    assert all(effects == plan[i] for _, i, effects in made)
+    assert len(a["cases"]) == 3 and len(b["cases"]) == 2
+    merged = bm.merge_runs([tmp_path / "a", tmp_path / "b"], tmp_path / "m")
+    assert sorted(r["case"] for r in merged["cases"]) == ["a/0", "a/2", "a/4", "b/1", "b/3"]
+    assert merged["summary"]["cases"] == 5
+
+
+def test_benchmark_cli_refuses_a_bad_shard(tmp_path):
+    from tof_mpd_ros.cli.main import main
+
+    assert main(["mismatch-benchmark", "--shard", "2/2", "-o", str(tmp_path / "x")]) != 0
+    assert not (tmp_path / "x").exists()

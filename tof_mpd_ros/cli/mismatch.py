@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ..errors import MismatchError
+from ..errors import InputError, MismatchError
 from .output import add_output
 
 
@@ -65,6 +65,10 @@ def register(subparsers: Any) -> None:
     b.add_argument("--resume", action="store_true",
                    help="keep the cases an interrupted run with the same --cases, --seed and "
                         "--base answered in OUT, run the others")
+    b.add_argument("--shard", metavar="I/N", default=None,
+                   help="run only every N-th case of the plan from the I-th (0-based), into "
+                        "OUT; N such runs in their own directories share one benchmark, "
+                        "scored together with --merge")
     b.add_argument("--merge", nargs="+", metavar="RUN_DIR",
                    help="instead of running: score finished benchmark directories together")
     add_output(b, "output directory (created)")
@@ -132,9 +136,16 @@ def _benchmark(args: argparse.Namespace) -> int:
         print(text_table(doc["cases"], doc["summary"]))
         print(json.dumps(doc["summary"], indent=2))
         return 0
-    with tqdm(total=args.cases, desc="benchmark cases", file=sys.stderr) as bar:
+    from ..sim.dataset import Shard
+
+    try:
+        shard = Shard() if args.shard is None else Shard.parse(args.shard)
+    except ValueError as err:
+        raise InputError(f"--shard: {err}") from err
+    with tqdm(total=len(shard.take(list(range(args.cases)))), desc="benchmark cases",
+              file=sys.stderr) as bar:
         doc = run_benchmark(args.cases, args.seed, args.output, n_frames=args.frames,
-                            base=args.base, resume=args.resume,
+                            base=args.base, resume=args.resume, shard=shard,
                             progress=lambda msg: bar.update(1))
     print(text_table(doc["cases"], doc["summary"]))
     print(json.dumps(doc["summary"], indent=2))

@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import MismatchError
 from ..recordings import save_npz
+from ..sim.dataset import Shard
 from ..templates import render
 from .analysis import MIN_SCORE, MIN_T, analyse, build_problem
 from .cases import CONCEALABLE, PATHTRACE_OWN, generate_case, truth_config
@@ -363,7 +364,7 @@ def _finished_labels(out: Path, plan: list[tuple[str, ...]],
 
 
 def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int = 6,
-                  base: str = "nominal", resume: bool = False,
+                  base: str = "nominal", resume: bool = False, shard: Shard | None = None,
                   progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Generate ``n_cases`` cases, run the tool blind on each, score, write JSON + table.
 
@@ -378,6 +379,11 @@ def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int
     (each case's frames are drawn from ``(seed, case)`` alone, so the rest come out as they
     would have) and run only the others.
 
+    ``shard``: run only the plan's cases of this slice (every N-th from the I-th, as
+    ``tof-mpd sim dataset --shard``; default all), so N processes or machines share one plan,
+    each into its own ``out_dir``; :func:`merge_runs` scores their directories as one. A
+    case's frames do not depend on the slice it falls in.
+
     Returns:
         The ``benchmark.json`` document.
     """
@@ -386,9 +392,12 @@ def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int
     (out / "results").mkdir(exist_ok=True)
     plan = case_plan(n_cases, seed, base)
     done = _finished_labels(out, plan, base) if resume else {}
+    mine = set((shard or Shard()).take(list(range(n_cases))))
     labels: list[dict[str, Any]] = []
     t_gen, times = 0.0, []
     for i, effects in enumerate(plan):
+        if i not in mine:
+            continue
         if i in done:
             labels.append(done[i])
             if progress is not None:
