@@ -307,16 +307,16 @@ def test_torchrun_launch_of_the_cli_trains_the_fcn_kind(identity, tmp_path: Path
     assert (tmp_path / "ckpt" / "checkpoint.pt").is_file()
 
 
-def test_cli_holds_out_whole_sessions_for_validation(identity, tmp_path: Path) -> None:
+def test_cli_holds_out_frames_or_whole_sessions_for_validation(identity, tmp_path: Path) -> None:
     """Three recording sessions (an hour apart) of two frames each: the validation frames, on
-    which σ's gain is fitted, are one whole session by default, single frames on request."""
+    which σ's gain is fitted, are single frames by default, one whole session on request."""
     stamps = [0, 10**8, 3600 * 10**9, 3600 * 10**9 + 10**8, 7200 * 10**9, 7200 * 10**9 + 10**8]
     frames = [replace(f, stamp_ns=s) for f, s in zip(fcn_frames(6, seed=2), stamps, strict=True)]
     save_npz(tmp_path / "frames.npz", frames)
     save_calibration(tmp_path / "cal.npz", identity)
     base = ["train", str(tmp_path / "frames.npz"), "--calibration", str(tmp_path / "cal.npz"),
             "--model", "fcn", "--epochs", "1", "--crop-px", "32", "--batch-size", "4"]
-    assert main([*base, "-o", str(tmp_path / "s.npz")]) == 0
+    assert main([*base, "--val-split", "session", "-o", str(tmp_path / "s.npz")]) == 0
     assert load_weights(tmp_path / "s.npz").metadata["val_frames"] in ([0, 1], [2, 3], [4, 5])
-    assert main([*base, "--val-split", "frame", "-o", str(tmp_path / "f.npz")]) == 0
+    assert main([*base, "-o", str(tmp_path / "f.npz")]) == 0
     assert len(load_weights(tmp_path / "f.npz").metadata["val_frames"]) == 1
