@@ -439,21 +439,13 @@ class _Search:
                     continue
             if self.units_assumed and r.effect not in boxed and within_camera_window(r):
                 param, lo, hi = CAMERA_WINDOWS[r.effect]
-                self.unexplained.append({
-                    "round": k + 1, "effect": r.effect, "case": "camera_window",
-                    "score": round(r.score, 3), "parameters_at_edge": {},
-                    "why": phrase("unexplained_why", {
-                        "case": "camera_window", "param": param, "value": r.parameters[param],
-                        "low": lo, "high": hi, **CAMERA_WINDOW_REASONS[r.effect]}),
-                    "where": self.location.get("flagged", [])[:3]})
+                self._unexplain("camera_window", r.effect, k + 1, r.score, param=param,
+                                value=r.parameters[param], low=lo, high=hi,
+                                **CAMERA_WINDOW_REASONS[r.effect])
                 continue
             veil = veil_px(r, self.problem.real_mm[0].shape)
             if veil is not None:
-                self.unexplained.append({
-                    "round": k + 1, "effect": r.effect, "case": "veil",
-                    "score": round(r.score, 3), "parameters_at_edge": {},
-                    "why": phrase("unexplained_why", {"case": "veil", **veil}),
-                    "where": self.location.get("flagged", [])[:3]})
+                self._unexplain("veil", r.effect, k + 1, r.score, **veil)
                 continue
             edge = parameters_at_edge(r)
             if not edge:
@@ -461,12 +453,19 @@ class _Search:
             inner = self._away_from_edge(r, edge)
             if inner is not None:
                 return inner
-            self.unexplained.append({
-                "round": k + 1, "effect": r.effect, "case": "edge", "score": round(r.score, 3),
-                "parameters_at_edge": edge,
-                "why": phrase("unexplained_why", {"case": "edge"}),
-                "where": self.location.get("flagged", [])[:3]})
+            self._unexplain("edge", r.effect, k + 1, r.score, edge)
         return None
+
+    def _unexplain(self, case: str, effect: str, round_: int | None, score: float | None,
+                   edge: dict[str, float] | None = None, **why: Any) -> None:
+        """Add an ``unexplained`` entry of ``case`` (the template's ``unexplained_why`` words,
+        given ``why``), with where the residual sits."""
+        self.unexplained.append({
+            "round": round_, "effect": effect, "case": case,
+            "score": None if score is None else round(score, 3),
+            "parameters_at_edge": edge or {},
+            "why": phrase("unexplained_why", {"case": case, **why}),
+            "where": self.location.get("flagged", [])[:3]})
 
     def _by_frame_levels(self, r: FitResult, k: int) -> bool:
         """Whether ``r`` (an effect of ``FRAME_LEVEL_EFFECTS``) explains how the held-out
@@ -535,11 +534,7 @@ class _Search:
             fitted = FitResult(name, final, plain_params(final, name), len(free_params(name)))
             edge = parameters_at_edge(fitted)
             if edge:
-                self.unexplained.append({
-                    "round": None, "effect": name, "case": "profile_edge", "score": None,
-                    "parameters_at_edge": edge,
-                    "why": phrase("unexplained_why", {"case": "profile_edge"}),
-                    "where": self.location.get("flagged", [])[:3]})
+                self._unexplain("profile_edge", name, None, None, edge)
 
     def measure_pattern(self, profile: list[str]) -> list[str]:
         """One-shot, once the effects are named: the camera's fixed pattern is projected out
