@@ -33,6 +33,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                            help="how amplitude enters the model (default linear)")
     intrinsic.set_defaults(func=run_intrinsic)
     _register_install(commands)
+    _register_sigma(commands)
     _register_hand_eye(commands)
 
 
@@ -74,6 +75,62 @@ def run_install(args: argparse.Namespace) -> int:
     print(json.dumps({"output": str(args.output), "kind": model.kind,
                       "frame_before": [before[1], before[0]],
                       "frame": [calibration.shape[1], calibration.shape[0]]}))
+    return 0
+
+
+def _register_sigma(commands: argparse._SubParsersAction) -> None:
+    sigma = commands.add_parser(
+        "sigma", help="refit an fcn weights file's sigma on reference frames of your camera",
+        description="Refit the per-pixel uncertainty (sigma) of an fcn-kind weights file on "
+                    "recordings with a reference, e.g. a few scenes of the camera and the kind "
+                    "of scene it will run on that were not used for training. One gain on "
+                    "sigma is fitted so that 95.45 %% of those pixels lie within 2 sigma; the "
+                    "correction is unchanged. The trainer fits the same gain on its own "
+                    "validation frames, which come from the training scenes: on another "
+                    "renderer or camera the errors outgrow that sigma (docs/method.md section "
+                    "9). Use scenes other than those you evaluate on.",
+        epilog="example: tof-mpd calibrate sigma site_scenes/ --weights fcn.npz "
+               "-o fcn_site.npz")
+    sigma.add_argument("recordings", type=Path, nargs="+",
+                       help="recordings / .npz whose frames carry a reference")
+    sigma.add_argument("--weights", type=Path, required=True, help="fcn-kind weights file")
+    add_output(sigma, "weights .npz to write")
+    sigma.add_argument("--overwrite", action="store_true")
+    sigma.set_defaults(func=run_sigma)
+
+
+def run_sigma(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from ..correction.weights import save_weights
+    from ..errors import InputError
+    from ..recordings import iter_frames
+    from ..training.fcn_trainer import recalibrate_sigma_on_frames
+    from .correct import fit_to_frames, load_model
+
+    model = load_model(args.weights)
+    if model.kind != "fcn":
+        raise InputError(f"{args.weights}: a {model.kind!r} model predicts no sigma; "
+                         "`calibrate sigma` recalibrates the fcn kind's")
+    frames, skipped = [], 0
+    for path in args.recordings:
+        for frame in iter_frames(path):
+            if frame.reference_mm is None or not np.isfinite(frame.reference_mm).any():
+                skipped += 1  # an NPZ keeps a missing reference as NaN
+            else:
+                frames.append(frame)
+    if not frames:
+        raise InputError(f"no frame with a reference in {', '.join(map(str, args.recordings))}")
+    window = fit_to_frames(model, frames[0].range_mm.shape)
+    fitted, summary = recalibrate_sigma_on_frames(
+        window, frames, source=", ".join(map(str, args.recordings)))
+    # the network is the whole sensor's; only the gain came from the window
+    recalibrations = fitted.metadata["sigma_recalibrations"]
+    save_weights(args.output, replace(model, net=fitted.net, metadata={
+        **model.metadata, "sigma_recalibrations": recalibrations}),
+                 overwrite=args.overwrite)
+    print(json.dumps({"output": str(args.output), **summary,
+                      "frames_without_reference": skipped}))
     return 0
 
 

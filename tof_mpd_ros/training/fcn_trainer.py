@@ -45,6 +45,7 @@ DDP's gradient average is exactly the gradient of one process's step over the sa
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import math
@@ -409,11 +410,54 @@ def recalibrate_sigma(net: ResidualFCN, data: FCNTrainingData, val_ids: list[int
     fold it into ``net``'s σ output scales; returns the gain."""
     _, after, sigma, _, _ = _predict_usable(net, data, val_ids)
     gain = sigma_gain(after, sigma)
+    scale_sigma(net, gain)
+    log.info("sigma recalibrated on %d validation frames: gain %.3f", len(val_ids), gain)
+    return gain
+
+
+def scale_sigma(net: ResidualFCN, gain: float) -> None:
+    """Multiply ``net``'s predicted σ by ``gain`` (> 0) by folding it into the σ output's floor
+    and scale: the correction is untouched and the weights file needs no new field."""
+    if not gain > 0:
+        raise InputError(f"a sigma gain must be > 0, got {gain}")
     a = net.architecture
     net.architecture = replace(a, sigma_floor_mm=a.sigma_floor_mm * gain,
                                sigma_scale_mm=a.sigma_scale_mm * gain)
-    log.info("sigma recalibrated on %d validation frames: gain %.3f", len(val_ids), gain)
-    return gain
+
+
+def recalibrate_sigma_on_frames(model: FCNCorrectionModel, frames: Sequence[ToFFrame], *,
+                                source: str = "") -> tuple[FCNCorrectionModel, dict[str, Any]]:
+    """A copy of ``model`` whose σ is refitted (:func:`sigma_gain`) on ``frames`` with
+    references, e.g. held-out reference frames of the camera and scenes it will run on.
+
+    The trainer fits σ's gain on its own validation frames, which come from the training
+    scenes and renderer; on another camera or another kind of scene the network's errors are
+    larger than that σ says (docs/method.md §9). One gain on a few scenes of the camera's own
+    kind fixes the level; the correction and the network's weights are unchanged.
+
+    Returns:
+        The recalibrated model (its ``metadata["sigma_recalibrations"]`` gains an entry) and a
+        summary: ``gain``, ``frames``, ``pixels`` and the 1/2/3σ coverage on ``frames`` before
+        and after (in-sample: measure on other frames with ``tof-mpd evaluate``).
+
+    Raises:
+        InputError: no frames, a frame without reference or of another size, or no pixel with
+            both a valid measurement and a reference.
+    """
+    _, after, sigma = _frame_errors(model, frames)
+    if after.size == 0:
+        raise InputError("no pixel with both a valid measurement and a reference to "
+                         "recalibrate sigma on")
+    gain = sigma_gain(after, sigma)
+    net = copy.deepcopy(model.net)
+    scale_sigma(net, gain)
+    summary = {"gain": gain, "frames": len(frames), "pixels": int(after.size),
+               "coverage_before": coverage(after, sigma),
+               "coverage_after": coverage(after, sigma * gain)}
+    entry = {"gain": gain, "frames": len(frames), "pixels": int(after.size), "source": source}
+    history = [*model.metadata.get("sigma_recalibrations", []), entry]
+    return replace(model, net=net, metadata={**model.metadata,
+                                             "sigma_recalibrations": history}), summary
 
 
 def evaluate_fcn(model: FCNCorrectionModel, frames: Sequence[ToFFrame]) -> dict[str, float]:
@@ -427,6 +471,15 @@ def evaluate_fcn(model: FCNCorrectionModel, frames: Sequence[ToFFrame]) -> dict[
     Raises:
         InputError: no frames, a frame without reference or of another size.
     """
+    stats = error_stats(*_frame_errors(model, frames), model.max_sigma_mm)
+    return {"frames": len(frames), **stats}
+
+
+def _frame_errors(model: FCNCorrectionModel, frames: Sequence[ToFFrame]
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(before, after, sigma)``, each (M,) float over the valid pixels with a reference, mm:
+    the errors of the calibrated range and of the network's own range (``range_f_mm``, before
+    the σ gate), and the predicted σ; frames through :func:`correct`, as at inference."""
     check_training_frames(frames, model.shape)
     parts: list[list[np.ndarray]] = [[], [], []]
     for c0 in range(0, len(frames), FRAMES_PER_CHUNK):
@@ -438,8 +491,8 @@ def evaluate_fcn(model: FCNCorrectionModel, frames: Sequence[ToFFrame]) -> dict[
         for part, a in zip(parts, (res.calibrated_mm - ref, res.range_f_mm - ref, res.sigma_mm),
                            strict=True):
             part.append(a[ok])
-    stats = error_stats(*(np.concatenate(p) for p in parts), model.max_sigma_mm)
-    return {"frames": len(frames), **stats}
+    before, after, sigma = (np.concatenate(p) for p in parts)
+    return before, after, sigma
 
 
 def _fingerprint(cfg: FCNTrainConfig, seed: int, digest: str, val_ids: list[int],
@@ -574,4 +627,4 @@ def _train_fcn(frames: Sequence[ToFFrame], calibration: IntrinsicCalibration,
 
 __all__ = ["FCNTrainConfig", "FCNTrainingData", "crop_batch", "draw_crops", "error_stats",
            "evaluate_fcn", "learning_rate", "prepare_fcn_data", "recalibrate_sigma",
-           "sigma_gain", "train_fcn"]
+           "recalibrate_sigma_on_frames", "scale_sigma", "sigma_gain", "train_fcn"]
