@@ -88,6 +88,8 @@ def test_the_gain_covers_the_site_frames_and_carries_to_others(
     old, new = (correct(m, frame.range_mm, frame.amplitude) for m in (before, after))
     np.testing.assert_allclose(new.sigma_mm, summary["gain"] * old.sigma_mm, rtol=1e-5)
     np.testing.assert_array_equal(new.range_f_mm, old.range_f_mm)
+    np.testing.assert_array_equal(new.range_mm, old.range_mm)  # the gate moved with σ
+    assert after.max_sigma_mm == pytest.approx(summary["gain"] * before.max_sigma_mm)
     np.testing.assert_array_equal(after.calibration.c0, before.calibration.c0)
     entry, = after.metadata["sigma_recalibrations"]
     assert entry["gain"] == pytest.approx(summary["gain"]) and entry["frames"] == 3

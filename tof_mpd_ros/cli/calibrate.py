@@ -85,10 +85,11 @@ def _register_sigma(commands: argparse._SubParsersAction) -> None:
                     "recordings with a reference, e.g. a few scenes of the camera and the kind "
                     "of scene it will run on that were not used for training. One gain on "
                     "sigma is fitted so that 95.45 %% of those pixels lie within 2 sigma; the "
-                    "correction is unchanged. The trainer fits the same gain on its own "
-                    "validation frames, which come from the training scenes: on another "
-                    "renderer or camera the errors outgrow that sigma (docs/method.md section "
-                    "9). Use scenes other than those you evaluate on.",
+                    "threshold above which a pixel takes a neighbour's side (max_sigma_mm) "
+                    "moves with it, so the corrected range is unchanged. The trainer fits "
+                    "the same gain on its own validation frames, which come from the training "
+                    "scenes: on another renderer or camera the errors outgrow that sigma "
+                    "(docs/method.md section 9). Use scenes other than those you evaluate on.",
         epilog="example: tof-mpd calibrate sigma site_scenes/ --weights fcn.npz "
                "-o fcn_site.npz")
     sigma.add_argument("recordings", type=Path, nargs="+",
@@ -126,8 +127,9 @@ def run_sigma(args: argparse.Namespace) -> int:
         window, frames, source=", ".join(map(str, args.recordings)))
     # the network is the whole sensor's; only the gain came from the window
     recalibrations = fitted.metadata["sigma_recalibrations"]
-    save_weights(args.output, replace(model, net=fitted.net, metadata={
-        **model.metadata, "sigma_recalibrations": recalibrations}),
+    save_weights(args.output, replace(model, net=fitted.net, max_sigma_mm=fitted.max_sigma_mm,
+                                      metadata={**model.metadata,
+                                                "sigma_recalibrations": recalibrations}),
                  overwrite=args.overwrite)
     print(json.dumps({"output": str(args.output), **summary,
                       "frames_without_reference": skipped}))

@@ -433,7 +433,9 @@ def recalibrate_sigma_on_frames(model: FCNCorrectionModel, frames: Sequence[ToFF
     The trainer fits σ's gain on its own validation frames, which come from the training
     scenes and renderer; on another camera or another kind of scene the network's errors are
     larger than that σ says (docs/method.md §9). One gain on a few scenes of the camera's own
-    kind fixes the level; the correction and the network's weights are unchanged.
+    kind fixes the level. The network's weights are unchanged, and ``max_sigma_mm`` (the σ above
+    which a pixel takes a sure neighbour's side) is scaled by the same gain, so the same pixels
+    are unsure and the corrected range is the same: only the reported σ changes.
 
     Returns:
         The recalibrated model (its ``metadata["sigma_recalibrations"]`` gains an entry) and a
@@ -456,8 +458,8 @@ def recalibrate_sigma_on_frames(model: FCNCorrectionModel, frames: Sequence[ToFF
                "coverage_after": coverage(after, sigma * gain)}
     entry = {"gain": gain, "frames": len(frames), "pixels": int(after.size), "source": source}
     history = [*model.metadata.get("sigma_recalibrations", []), entry]
-    return replace(model, net=net, metadata={**model.metadata,
-                                             "sigma_recalibrations": history}), summary
+    return replace(model, net=net, max_sigma_mm=model.max_sigma_mm * gain,
+                   metadata={**model.metadata, "sigma_recalibrations": history}), summary
 
 
 def evaluate_fcn(model: FCNCorrectionModel, frames: Sequence[ToFFrame]) -> dict[str, float]:
