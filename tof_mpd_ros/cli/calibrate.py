@@ -84,7 +84,7 @@ def _register_sigma(commands: argparse._SubParsersAction) -> None:
         description="Refit the per-pixel uncertainty (sigma) of an fcn-kind weights file on "
                     "recordings with a reference, e.g. a few scenes of the camera and the kind "
                     "of scene it will run on that were not used for training. One gain on "
-                    "sigma is fitted so that 95.45 %% of those pixels lie within 2 sigma; the "
+                    "sigma is fitted so that 95.45 % of those pixels lie within 2 sigma; the "
                     "threshold above which a pixel takes a neighbour's side (max_sigma_mm) "
                     "moves with it, so the corrected range is unchanged. The trainer fits "
                     "the same gain on its own validation frames, which come from the training "
