@@ -21,7 +21,8 @@ random square crops:
   that 95.45 % of their pixels lie within 2 σ (the Gaussian's share), and folded into the
   network's σ output scales (``metadata["sigma_gain"]``). A network trained on a few scenes
   is over-confident on scenes it has not seen; a single scale fixes that without touching the
-  correction (no validation frames: gain 1);
+  correction (no validation frames: gain 1). :func:`recalibrate_sigma_on_frames` (``tof-mpd
+  calibrate sigma``) refits that gain later on other reference frames, e.g. the site's own;
 * crops: every epoch draws ``crops_per_frame`` crops of ``crop_px`` x ``crop_px`` per training
   frame (a frame smaller than that is used whole) at uniform positions, shuffled, from a
   generator seeded by ``(seed, epoch)``: runs are deterministic and a resumed run is identical
