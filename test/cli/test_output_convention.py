@@ -16,6 +16,7 @@ from tof_mpd_ros.camera import Intrinsics
 from tof_mpd_ros.cli.main import build_parser, main
 from tof_mpd_ros.cli.output import CliParser, OldOutputForm, add_output
 from tof_mpd_ros.correction.encoding import EncodingConfig
+from tof_mpd_ros.correction.fcn import FCNCorrectionModel
 from tof_mpd_ros.correction.pipeline import CorrectionModel
 from tof_mpd_ros.correction.weights import save_weights
 from tof_mpd_ros.frame import ToFFrame
@@ -56,6 +57,7 @@ def inputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     encoding = EncodingConfig(range_min_mm=300.0, range_max_mm=450.0, amplitude_min=0.2,
                               amplitude_max=2.0)
     save_weights(paths["weights"], CorrectionModel.untrained(calibration, encoding, seed=0))
+    paths["fcn"] = save_weights(d / "fcn.npz", FCNCorrectionModel.untrained(calibration, seed=0))
     paths["adi"] = d / "adi"  # one mode of an Analog Devices folder (docs/real_cameras.md)
     paths["adi"].mkdir()
     for name, value, dtype in (("depth", 400, np.uint16), ("amplitude", 100, np.uint16),
@@ -84,6 +86,7 @@ WRITING = {
     "sim merge": "sim merge {shard0} {shard1}",
     "calibrate intrinsic": "calibrate intrinsic {frames}",
     "calibrate install": "calibrate install {calibration} --weights {weights}",
+    "calibrate sigma": "calibrate sigma {frames} --weights {fcn}",
     "calibrate hand-eye": "calibrate hand-eye {tmp}/session --simulate --views 4 --min-views 3",
     "train": "train {frames} --calibration {calibration} --epochs 1 "
              "--max-samples-per-frame 100 --target-clip-mm 15 --edge-thresholds paper",
@@ -94,7 +97,7 @@ WRITING = {
 }
 #: commands whose output is one .npz file (a directory otherwise, or a JSON for hand-eye)
 NPZ_OUTPUTS = {"recording export-npz", "recording import-adi", "sim predict", "calibrate intrinsic",
-               "calibrate install", "train", "correct"}
+               "calibrate install", "calibrate sigma", "train", "correct"}
 #: run for minutes even on tiny inputs: their -o/--output is only parsed here
 TOO_SLOW = {"mismatch": "mismatch real.npz", "mismatch-benchmark": "mismatch-benchmark",
             "demo": "demo"}
@@ -140,7 +143,7 @@ def test_every_subcommand_that_writes_has_o_output_and_no_positional_output() ->
 @pytest.mark.parametrize("flag", ["-o", "--output"])
 def test_every_writing_subcommand_parses_o_and_output(command: str, flag: str) -> None:
     line = {**WRITING, **TOO_SLOW}[command].format(**dict.fromkeys(
-        ("tmp", "one", "frames", "recording", "calibration", "weights", "adi", "shard0",
+        ("tmp", "one", "frames", "recording", "calibration", "weights", "fcn", "adi", "shard0",
          "shard1"), "in"))
     args = build_parser().parse_args([*shlex.split(line), flag, "somewhere/out"])
     assert args.output == Path("somewhere/out")
