@@ -105,23 +105,17 @@ def run_sigma(args: argparse.Namespace) -> int:
 
     from ..correction.weights import save_weights
     from ..errors import InputError
-    from ..recordings import iter_frames
     from ..training.fcn_trainer import recalibrate_sigma_on_frames
     from .correct import fit_to_frames, load_model
+    from .train import load_reference_frames
 
     model = load_model(args.weights)
     if model.kind != "fcn":
         raise InputError(f"{args.weights}: a {model.kind!r} model predicts no sigma; "
                          "`calibrate sigma` recalibrates the fcn kind's")
-    frames, skipped = [], 0
-    for path in args.recordings:
-        for frame in iter_frames(path):
-            if frame.reference_mm is None or not np.isfinite(frame.reference_mm).any():
-                skipped += 1  # an NPZ keeps a missing reference as NaN
-            else:
-                frames.append(frame)
-    if not frames:
-        raise InputError(f"no frame with a reference in {', '.join(map(str, args.recordings))}")
+    # an NPZ keeps a missing reference as NaN
+    frames, skipped = load_reference_frames(
+        args.recordings, lambda ref: ref is not None and bool(np.isfinite(ref).any()))
     window = fit_to_frames(model, frames[0].range_mm.shape)
     fitted, summary = recalibrate_sigma_on_frames(
         window, frames, source=", ".join(map(str, args.recordings)))

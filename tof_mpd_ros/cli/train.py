@@ -8,6 +8,7 @@ import json
 import logging
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -92,14 +93,25 @@ def _clip_arg(text: str) -> tuple[float | None, ...]:
 
 
 def load_training_frames(paths: list[Path]) -> list:
+    return load_reference_frames(paths, lambda ref: ref is not None)[0]
+
+
+def load_reference_frames(paths: list[Path], has_reference: Callable[[Any], bool]
+                          ) -> tuple[list, int]:
+    """The frames of ``paths`` whose ``reference_mm`` passes ``has_reference``, and how many
+    did not.
+
+    Raises:
+        InputError: no frame passes.
+    """
     from ..errors import InputError
     from ..recordings import iter_frames
 
     frames = [f for path in paths for f in iter_frames(path)]
-    usable = [f for f in frames if f.reference_mm is not None]
+    usable = [f for f in frames if has_reference(f.reference_mm)]
     if not usable:
         raise InputError(f"no frame with a reference in {', '.join(map(str, paths))}")
-    return usable
+    return usable, len(frames) - len(usable)
 
 
 def _train_patch(args: argparse.Namespace, frames: list, calibration: Any

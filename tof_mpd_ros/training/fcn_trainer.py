@@ -448,17 +448,13 @@ def recalibrate_sigma_on_frames(model: FCNCorrectionModel, frames: Sequence[ToFF
             both a valid measurement and a reference.
     """
     _, after, sigma = _frame_errors(model, frames)
-    if after.size == 0:
-        raise InputError("no pixel with both a valid measurement and a reference to "
-                         "recalibrate sigma on")
-    gain = sigma_gain(after, sigma)
+    gain = sigma_gain(after, sigma)  # raises when no pixel is left
     net = copy.deepcopy(model.net)
     scale_sigma(net, gain)
-    summary = {"gain": gain, "frames": len(frames), "pixels": int(after.size),
-               "coverage_before": coverage(after, sigma),
+    entry = {"gain": gain, "frames": len(frames), "pixels": int(after.size)}
+    summary = {**entry, "coverage_before": coverage(after, sigma),
                "coverage_after": coverage(after, sigma * gain)}
-    entry = {"gain": gain, "frames": len(frames), "pixels": int(after.size), "source": source}
-    history = [*model.metadata.get("sigma_recalibrations", []), entry]
+    history = [*model.metadata.get("sigma_recalibrations", []), {**entry, "source": source}]
     return replace(model, net=net, max_sigma_mm=model.max_sigma_mm * gain,
                    metadata={**model.metadata, "sigma_recalibrations": history}), summary
 
