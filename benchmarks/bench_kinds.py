@@ -72,13 +72,15 @@ def conv_flops(net: ResidualFCN, h: int, w: int) -> int:
         total += 2 * k * out.numel()
 
     handles = [m.register_forward_hook(hook) for m in net.modules()
-               if isinstance(m, torch.nn.Conv2d)]
+               if isinstance(m, torch.nn.Conv2d) and m is not net.head]
     m = net.architecture.multiple
+    hp, wp = -(-h // m) * m, -(-w // m) * m
     with torch.no_grad():
-        net.raw(torch.zeros(1, N_INPUTS, -(-h // m) * m, -(-w // m) * m))
+        net.raw(torch.zeros(1, N_INPUTS, hp, wp))
     for handle in handles:
         handle.remove()
-    return total
+    # the 1 x 1 head runs as a matrix product (ResidualFCN.raw), which no hook sees
+    return total + 2 * net.head.weight.numel() * hp * wp
 
 
 def models(h: int, w: int, args: argparse.Namespace) -> dict[str, Any]:

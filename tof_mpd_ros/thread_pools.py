@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 
 _POOLS: dict[tuple[str, int], ThreadPoolExecutor] = {}
@@ -40,3 +41,26 @@ def shared_pool(name: str, workers: int) -> ThreadPoolExecutor:
             pool = _POOLS[(name, workers)] = ThreadPoolExecutor(
                 max_workers=workers - 1, thread_name_prefix=f"tof-mpd-{name}")
         return pool
+
+
+def run_chunks(name: str, workers: int, kernel: Callable[..., None], n_chunks: int,
+               *args: object) -> None:
+    """Run ``kernel(first, stride, n_chunks, *args)`` for ``first`` in ``range(workers)`` (at
+    most ``n_chunks`` of them): the caller runs ``first`` 0, ``shared_pool(name, workers)``
+    the others; returns when all are done and re-raises the first error.
+
+    For serial, GIL-free numba kernels that take every ``stride``-th of ``n_chunks`` chunks
+    from ``first`` on: plain Python threads rather than numba's OpenMP ``prange``, so no OpenMP
+    team exists whose idle threads could spin against torch's in the same process.
+    """
+    workers = max(1, min(int(workers), n_chunks))
+    if workers == 1:
+        kernel(0, 1, n_chunks, *args)
+        return
+    pool = shared_pool(name, workers)
+    futures = [pool.submit(kernel, t, workers, n_chunks, *args) for t in range(1, workers)]
+    try:
+        kernel(0, workers, n_chunks, *args)
+    finally:
+        for f in futures:
+            f.result()

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from oracles.kernel_mean import kernel_mean_shift_reference
 from scipy import stats
 from weights_files import rewrite_weights
 
@@ -19,8 +20,10 @@ from tof_mpd_ros.correction.fcn import (
     FCNArchitecture,
     FCNCorrectionModel,
     ResidualFCN,
+    _kernel_mean_shift_torch,
     fcn_inputs,
     gaussian_nll,
+    kernel_mean_shift,
     pad_to_multiple,
     receptive_field_px,
     run_fcn,
@@ -101,6 +104,51 @@ def test_kernel_is_a_gated_weighted_mean_of_the_neighbours() -> None:
     centre[12] = 30.0
     _constant_head(model, 0.0, -3.0, centre)
     np.testing.assert_allclose(correct(model, r, a).range_mm, r, atol=1e-3)
+
+
+def _kernel_case(k: int, channels_last: bool, seed: int = 0
+                 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Logits, ranges (m) and validity of two 23 x 31 frames: a plane with 2 mm noise and two
+    steps, one inside the 30 mm gate (12 mm) and one beyond it (80 mm), some invalid pixels."""
+    gen = torch.Generator().manual_seed(seed)
+    logits = 3.0 * torch.randn(2, k * k, 23, 31, generator=gen)
+    if channels_last:
+        logits = logits.contiguous(memory_format=torch.channels_last)
+    r_mm = 400.0 + 2.0 * torch.randn(2, 23, 31, generator=gen)
+    r_mm[:, :, 10:] += 12.0
+    r_mm[:, 14:, :] += 80.0
+    valid = (torch.rand(2, 23, 31, generator=gen) > 0.1).float()
+    return logits, r_mm / 1000.0 * valid, valid
+
+
+@pytest.mark.parametrize(("k", "channels_last"), [(5, True), (5, False), (3, True)])
+def test_kernel_mean_shift_matches_the_per_neighbour_reference(k: int,
+                                                               channels_last: bool) -> None:
+    logits, range_m, valid = _kernel_case(k, channels_last)
+    want = kernel_mean_shift_reference(logits, range_m, valid, 30.0)
+    for fn in (kernel_mean_shift, _kernel_mean_shift_torch):
+        got = fn(logits, range_m, valid, 30.0)
+        assert got.shape == valid.shape and got.dtype == torch.float32
+        np.testing.assert_allclose(got.numpy(), want.numpy(), atol=2e-4)
+    # a weighted mean of neighbours within the gate moves no pixel beyond it (the 80 mm step
+    # takes no weight), and an invalid pixel not at all
+    assert 10.0 < float(want.abs().max()) <= 30.0 and (want[valid == 0] == 0).all()
+    near_step = want[:, 2:12, 10]             # just right of the 12 mm step, above the 80 mm
+    assert float(near_step.mean()) < -0.5     # its left neighbours pull it down
+
+
+def test_kernel_mean_shift_gradient_matches_the_reference() -> None:
+    logits, range_m, valid = _kernel_case(5, channels_last=True, seed=1)
+    upstream = torch.randn(valid.shape, generator=torch.Generator().manual_seed(2))
+    grads = []
+    for fn in (kernel_mean_shift, kernel_mean_shift_reference):
+        lg = logits.clone().requires_grad_(True)
+        (fn(lg, range_m, valid, 30.0) * upstream).sum().backward()
+        grads.append(lg.grad.double())
+    np.testing.assert_allclose(grads[0].numpy(), grads[1].numpy(), atol=1e-4)
+    assert float(grads[1].abs().max()) > 0.1      # not a vacuous match of zeros
+    # invalid pixels pass no gradient to their logits
+    assert (grads[0].permute(1, 0, 2, 3)[:, valid == 0] == 0).all()
 
 
 def test_sigma_gates_the_output_and_sets_the_confidence() -> None:

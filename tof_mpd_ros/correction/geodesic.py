@@ -59,7 +59,7 @@ import numba
 import numpy as np
 
 from ..errors import InputError
-from ..thread_pools import shared_pool
+from ..thread_pools import run_chunks
 from ..validation import check_array, check_same_shape
 
 DEFAULT_MAX_STEPS = 32.0
@@ -509,25 +509,11 @@ def _n_chunks(h: int) -> int:
 
 
 def _run_chunks(kernel: object, n_chunks: int, *args: object) -> None:
-    """Run ``kernel(first, stride, n_chunks, *args)`` on ``numba.get_num_threads()`` threads.
-
-    The kernels are serial, GIL-free numba functions; the chunks are spread over plain Python
-    threads (the caller plus a pool) rather than numba's OpenMP ``prange``, so no OpenMP team
-    exists whose idle threads could spin against torch's (whatever OMP_WAIT_POLICY libgomp saw
-    when it was loaded) and the thread count follows ``numba.set_num_threads``.
-    """
-    workers = max(1, min(numba.get_num_threads(), n_chunks))
+    """Run ``kernel(first, stride, n_chunks, *args)`` on ``numba.get_num_threads()`` threads
+    (:func:`~tof_mpd_ros.thread_pools.run_chunks`: the thread count follows
+    ``numba.set_num_threads``), one call at a time."""
     with _KERNEL_LOCK:
-        if workers == 1:
-            kernel(0, 1, n_chunks, *args)
-            return
-        pool = shared_pool("geodesic", workers)
-        futures = [pool.submit(kernel, t, workers, n_chunks, *args) for t in range(1, workers)]
-        try:
-            kernel(0, workers, n_chunks, *args)
-        finally:
-            for f in futures:
-                f.result()
+        run_chunks("geodesic", numba.get_num_threads(), kernel, n_chunks, *args)
 
 
 def geodesic_neighbours(edges: np.ndarray, valid: np.ndarray, *, k: int = 81, step: float = 1.0,
