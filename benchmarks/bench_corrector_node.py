@@ -10,7 +10,8 @@ Three processes on loopback, in their own ROS domain (``--domain-id``, default 9
   thread) and an untrained model of ``--kind`` (patch or fcn) covering ``--window`` (default:
   the frame; ``--weights`` to use a trained file: the per-frame cost does not depend on the
   weights' values; ``--window 32x24`` processes a small central window of the same frames, to
-  see what the node itself sustains);
+  see what the node itself sustains); ``--threads`` and ``--parallel-frames`` set the node's
+  parameters of those names;
 * the listener (this process) receives the corrected depth and ``/diagnostics``.
 
 End-to-end latency = listener receive time - the input's header stamp (one host clock): it
@@ -155,6 +156,7 @@ def measure(rate: float, args: argparse.Namespace, weights: Path, log_dir: str) 
         [sys.executable, "-m", "tof_mpd_ros.nodes.corrector", "--ros-args",
          "-p", f"weights_path:={weights}", "-p", "diagnostics_period_s:=0.5",
          "-p", f"threads:={args.threads}", "-p", f"precision:={args.precision}",
+         "-p", f"parallel_frames:={args.parallel_frames}",
          "-r", "__ns:=/tof"],  # its topics are relative
         env=env, stdout=log, stderr=subprocess.STDOUT)
     context = rclpy.Context()
@@ -243,6 +245,8 @@ def main() -> None:
                         "frame): a small window shows what the node itself sustains")
     parser.add_argument("--threads", type=int, default=1, help="the node's threads parameter "
                         "(default 1, the node's default)")
+    parser.add_argument("--parallel-frames", type=int, default=1,
+                        help="the node's parallel_frames parameter (frames corrected at once)")
     parser.add_argument("--precision", choices=("float32", "bfloat16"), default="float32",
                         help="the node's precision parameter")
     parser.add_argument("--json", help="also write the numbers to this JSON file")
@@ -296,8 +300,9 @@ def main() -> None:
     window = stream.crop_width, stream.crop_height
     window = (min(window[0], frame[0]), min(window[1], frame[1]))
     print(f"frame: {frame[0]}x{frame[1]} 32FC1, {model.kind} kind, {args.precision}, window "
-          f"{window[0]}x{window[1]}; in-process DepthStreamCorrector.correct ({args.threads} "
-          f"thread(s)): median "
+          f"{window[0]}x{window[1]}; node: threads {args.threads}, parallel_frames "
+          f"{args.parallel_frames}; in-process DepthStreamCorrector.correct ({args.threads} "
+          f"thread(s), one frame at a time): median "
           f"{offline_ms:.1f} ms")
     rows = [("input rate (Hz)", "rate_hz", "{:g}"), ("frames sent", "sent", "{}"),
             ("corrected", "corrected", "{}"), ("dropped", "dropped", "{}"),

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from typing import Any
 
 import rclpy
@@ -45,9 +46,10 @@ class FaultyCorrector(CorrectorNode):
         self.stream.correct = faulty_correct
         self.pub_depth.publish = faulty_publish
 
-    def _process(self, pair: _Pair) -> None:
-        self._fault = pair.depth.header.frame_id  # the worker thread alone reads it
-        super()._process(pair)
+    def _process(self, pair: _Pair) -> Callable[[], None] | None:
+        # the one worker thread alone reads it (its publish step runs before the next pair)
+        self._fault = pair.depth.header.frame_id
+        return super()._process(pair)
 
 
 if __name__ == "__main__":

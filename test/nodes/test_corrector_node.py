@@ -255,8 +255,9 @@ def frame_variants(views: list[tuple[Image, Image, CameraInfo]]
     return out
 
 
+@pytest.mark.parametrize("parallel_frames", [1, 2])
 def test_every_frame_sent_comes_back_corrected_like_the_offline_pipeline(
-        weights: dict[str, Path], tmp_path: Path) -> None:
+        weights: dict[str, Path], tmp_path: Path, parallel_frames: int) -> None:
     """This process -> corrector -> this process: STREAM_FRAMES frames at the paper's 180x140
     crop, each comes back once, equal to the offline pipeline, to a default-QoS subscriber
     (``create_subscription(..., 10)``: reliable, what RViz2 and most user code use) and to a
@@ -269,12 +270,15 @@ def test_every_frame_sent_comes_back_corrected_like_the_offline_pipeline(
     the machine, and the inputs are reliable (DDS does not lose a frame on a busy host). So the
     node must publish every frame, exactly once, with its header, equal to
     ``DepthStreamCorrector`` run offline on the same input, and count no drop. Whether it keeps
-    up with 30 Hz is measured by benchmarks/bench_corrector_node.py, not here.
+    up with 30 Hz is measured by benchmarks/bench_corrector_node.py, not here. With
+    ``parallel_frames`` 2 the two frames in flight are corrected at once, and the outputs must
+    still come back in the order the frames were sent.
     """
     h, w = PAPER
     corrector_log, sim_log = tmp_path / "corrector.log", tmp_path / "sim_cell.log"
     corrector = start_corrector(weights["paper"], STREAM_DOMAIN, corrector_log,
-                                queue_size=IN_FLIGHT, input_reliability="reliable")
+                                queue_size=IN_FLIGHT, input_reliability="reliable",
+                                parallel_frames=parallel_frames)
     sim = start_node("sim_cell", {"views": 2, "crop_width": w, "crop_height": h,
                                   "publish_reference": False},
                      STREAM_DOMAIN, sim_log,
@@ -338,6 +342,8 @@ def test_every_frame_sent_comes_back_corrected_like_the_offline_pipeline(
     assert not lost, (f"{len(lost)} of {STREAM_FRAMES} frames without output (frames "
                       f"{lost[:10]}...; {n_sent} sent); diagnostics {values}; log:\n{log[-3000:]}")
     assert all(len(returned[t]) == 1 for t in stamps), "a frame came back twice"
+    arrived = [t for t in returned if t in which]   # a dict keeps the order of arrival
+    assert arrived == sorted(arrived), "outputs published out of the order sent"
     lost_sensor = [i for i, t in enumerate(stamps) if t not in returned_sensor]
     assert not lost_sensor, f"the sensor-data subscriber missed frames {lost_sensor[:10]}..."
     assert all(returned_sensor[t][0].data == returned[t][0].data for t in stamps)

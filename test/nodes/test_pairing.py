@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 
 import pytest
 
@@ -129,3 +130,57 @@ def test_worker_queue_resizes_while_running_dropping_the_oldest() -> None:
     assert seen == [0, 3, 4, 5] and worker.dropped == 2
     with pytest.raises(ValueError):
         worker.resize(0)
+
+
+def test_two_workers_process_side_by_side_and_finish_in_order() -> None:
+    """Item 0 is held until item 1 has been processed: both are in process at once, and
+    item 1's finish step still runs after item 0's."""
+    one_done = threading.Event()
+    in_process: list[int] = []
+    finished: list[int] = []
+    lock = threading.Lock()
+
+    def process(item: int) -> Callable[[], None]:
+        with lock:
+            in_process.append(item)
+        if item == 0:
+            assert one_done.wait(60)     # item 1 completes first
+        elif item == 1:
+            one_done.set()
+        return lambda: finished.append(item)
+
+    worker: LatestQueueWorker[int] = LatestQueueWorker(process, maxsize=8, workers=2)
+    assert worker.workers == 2
+    for i in range(6):
+        worker.submit(i)
+    assert worker.drain(60)
+    worker.stop()
+    assert not worker.alive
+    assert finished == list(range(6)) and worker.processed == 6 and worker.failed == 0
+    assert in_process[:2] in ([0, 1], [1, 0])
+
+
+def test_a_failing_item_or_finish_step_keeps_the_order_of_the_others() -> None:
+    errors: list[BaseException] = []
+    finished: list[int] = []
+
+    def process(item: int) -> Callable[[], None] | None:
+        if item == 2:
+            raise ValueError("bad frame")
+        if item == 4:
+            return None                  # dropped on purpose: counted as processed
+        if item == 3:
+            return lambda: (_ for _ in ()).throw(RuntimeError("publisher gone"))
+        return lambda: finished.append(item)
+
+    worker: LatestQueueWorker[int] = LatestQueueWorker(process, maxsize=8, workers=3,
+                                                       on_error=errors.append)
+    for i in range(7):
+        worker.submit(i)
+    assert worker.drain(60)
+    worker.stop()
+    assert finished == [0, 1, 5, 6]
+    assert worker.processed == 5 and worker.failed == 2
+    assert sorted(type(e).__name__ for e in errors) == ["RuntimeError", "ValueError"]
+    with pytest.raises(ValueError):
+        LatestQueueWorker(lambda item: None, workers=0)
