@@ -12,7 +12,9 @@ targets (<= 15 ms at 180x140, <= 33 ms at 320x240 on 2 Zen 4 cores) and the pape
 layer shapes), the GFLOP/s reached and its share of the CPU's nominal float32 peak
 (``bench_pipeline.cpu_peak``, which explains the figure) and of a large GEMM measured in the
 same run. For each bfloat16 row: the share of pixels within 0.5 mm of the float32 output of
-the same kind (the issue's bar for reduced precision: >= 99.9 %).
+the same kind (the issue's bar for reduced precision: >= 99.9 %). For every row also the wall
+time per frame with two frames corrected at once, one torch thread each (the corrector node's
+``threads`` 1, ``parallel_frames`` 2): its frame rate, where the median is its latency.
 
 Inputs it makes itself: the synthetic scene of ``bench_pipeline`` (planes, a box, a disc, 2 mm
 noise), with untrained models of both kinds on an identity calibration (timing does not depend
@@ -37,6 +39,7 @@ import json
 import os
 import statistics
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -129,9 +132,37 @@ def time_size(h: int, w: int, args: argparse.Namespace) -> dict[str, Any]:
     for kind in ("patch", "fcn"):
         out[f"{kind}/bfloat16"]["within_0.5mm_of_float32"] = bf16_agreement(
             kinds[kind], frames[kind])
+    for kind, precision in ROWS:
+        out[f"{kind}/{precision}"]["two_at_once_ms_per_frame"] = two_at_once(
+            kinds[kind], frames[kind], precision, args.repeats)
     out["fcn_gflop_per_frame"] = conv_flops(kinds["fcn"].net, *kinds["fcn"].shape) / 1e9
     out["frames"] = {kind: f"{m.shape[1]}x{m.shape[0]}" for kind, m in kinds.items()}
     return out
+
+
+def two_at_once(model: Any, frames: list[tuple[np.ndarray, np.ndarray]], precision: str,
+                repeats: int) -> float:
+    """Wall ms per frame when two threads correct ``repeats`` frames each side by side, one
+    torch thread each: the corrector node's ``threads`` 1, ``parallel_frames`` 2 (its
+    throughput; each frame's latency is longer)."""
+    saved = torch.get_num_threads()
+    torch.set_num_threads(1)
+
+    def run(first: int) -> None:
+        for i in range(repeats):
+            correct(model, *frames[(first + i) % len(frames)], precision=precision)
+
+    try:
+        run(0)                                        # warm-up on one thread
+        workers = [threading.Thread(target=run, args=(k,)) for k in range(2)]
+        t0 = time.perf_counter()
+        for t in workers:
+            t.start()
+        for t in workers:
+            t.join()
+        return (time.perf_counter() - t0) * 1e3 / (2 * repeats)
+    finally:
+        torch.set_num_threads(saved)
 
 
 def bf16_agreement(model: Any, frames: list[tuple[np.ndarray, np.ndarray]]) -> float:
@@ -154,13 +185,14 @@ def print_size(label: str, res: dict[str, Any], peak: dict[str, Any], gemm: floa
     if smaller:
         print(f"  NOTE: timed on the weights' own smaller frame: {smaller}")
     print(f"  {'kind/precision':<18}{'median ms':>10}{'p90 ms':>9}{'vs patch f32':>14}"
-          f"{'bf16 within 0.5 mm':>20}")
+          f"{'bf16 within 0.5 mm':>20}{'2 at once, ms/frame':>21}")
     for kind, precision in ROWS:
         row = res[f"{kind}/{precision}"]
         agree = row.get("within_0.5mm_of_float32")
         agree_s = f"{100 * agree:.3f} %" if agree is not None else ""
         print(f"  {kind + '/' + precision:<18}{row['median_ms']:>10.1f}{row['p90_ms']:>9.1f}"
-              f"{row['median_ms'] / base:>13.2f}x{agree_s:>20}")
+              f"{row['median_ms'] / base:>13.2f}x{agree_s:>20}"
+              f"{row['two_at_once_ms_per_frame']:>21.1f}")
     gflop = res["fcn_gflop_per_frame"]
     rate = gflop / (res["fcn/float32"]["median_ms"] / 1e3)
     print(f"  fcn: {gflop:.2f} GFLOP per frame -> {rate:.1f} GFLOP/s in float32 = "
