@@ -282,3 +282,37 @@ def test_benchmark_cli_refuses_a_bad_shard(tmp_path):
 
     assert main(["mismatch-benchmark", "--shard", "2/2", "-o", str(tmp_path / "x")]) != 0
     assert not (tmp_path / "x").exists()
+
+
+def test_truth_margin_is_zero_for_the_truth_and_large_for_a_missed_drift(tmp_path, sweep):
+    """The data prefer the true model to an answer that missed an 8 mm warm-up drift by far
+    more than the tool's threshold (the level free does not take a drift's change from frame
+    to frame); an answer equal to the truth has no margin."""
+    from tof_mpd_ros.mismatch.analysis import MIN_SCORE
+    from tof_mpd_ros.mismatch.benchmark import truth_margin
+    from tof_mpd_ros.mismatch.cases import truth_config
+
+    params = {"max_mm": 8.0, "tau_frames": 5.0}
+    path = tmp_path / "drift.npz"
+    save_npz(path, sweep({"temperature_drift": params}))
+    label = {"effects": [{"name": "temperature_drift", "params": params}]}
+    found = truth_margin(path, label, {"config_after": truth_config(label["effects"]).to_dict()})
+    missed = truth_margin(path, label, {"config_after": ToFConfig.nominal().to_dict()})
+    assert abs(found) < 1.0
+    assert missed > 5 * MIN_SCORE
+    assert truth_margin(path, label, {"selected": []}) is None
+
+
+def test_top1_on_decidable_cases_leaves_out_the_ties_of_the_likelihood():
+    def row(truth, top1, margin):
+        return {"truth": truth, "selected": truth if top1 else [], "top1": top1,
+                "both_found": None, "rmse_before_mm": 5.0, "rmse_after_mm": 4.0,
+                "excess_before_mm": 2.0, "excess_after_mm": 1.0, "oracle_rmse_after_mm": 4.0,
+                "parameter_error": {}, "visibility_mnats": 50.0, "truth_margin_mnats": margin}
+    s = summarise([row(["hand_eye"], True, 0.5), row(["multipath"], False, 40.0),
+                   row(["lens_scatter"], False, 3.0), row(["subsurface"], False, -20.0),
+                   row(["time_offset"], True, None), row([], True, 0.0)])
+    assert s["effect_cases_with_truth_margin"] == 4
+    assert s["decidable_effect_cases"] == 2          # the right answer and the 40 mnats miss
+    assert s["top1_accuracy_decidable_effect_cases"] == 0.5
+    assert s["misses_the_truth_fits_no_better"] == 2

@@ -33,11 +33,12 @@ import numpy as np
 from ..errors import MismatchError
 from ..recordings import save_npz
 from ..sim.dataset import Shard
+from ..sim.tof import ToFConfig
 from ..templates import render
 from .analysis import MIN_SCORE, MIN_T, analyse, build_problem
 from .cases import CONCEALABLE, PATHTRACE_OWN, generate_case, truth_config
 from .data import load_frames
-from .fit import free_params
+from .fit import camera_moves, fit_effect, free_params
 from .likelihood import bic_penalty, tile_t_statistic
 from .profile import PROFILE_EFFECTS, SCENE_EFFECTS, adopt_recording
 from .report import _clean, to_json
@@ -136,6 +137,55 @@ def effect_visibility(frames_path: str | Path, label: dict[str, Any]) -> dict[st
     return out
 
 
+def truth_margin(frames_path: str | Path, label: dict[str, Any],
+                 result: dict[str, Any]) -> float | None:
+    """Held-out score (mnats per pixel) of the true model over the tool's final model: the
+    true camera with every concealed effect at its true parameters, against the
+    ``config_after`` the tool answered with. Each is judged as the tool judges its own: the
+    level free, the camera's fixed pattern projected out when the camera moves (any drawn
+    pixel pattern left out of both first: each gets the same estimate), and its noise
+    law refitted beside them (the tool fits its own; the truth's drawn law is not what a fit
+    of these frames would give). Compared on the held-out pixels both predict.
+
+    Why: "visible" (:func:`effect_visibility`) asks whether the true effect pays on top of
+    the true camera. This asks whether the data prefer the truth to what the tool found; an
+    answer that misses the effect while scoring within ``MIN_SCORE`` of the truth is a tie
+    the likelihood cannot break (a profile that absorbed the effect), not a search failure.
+    On a path-traced base the "true model" is the simulator's, which does not render the
+    frames; a negative margin is then the simulator's own limit. None when the answer has no
+    ``config_after``. Run only when scoring (it reads the label)."""
+    if "config_after" not in result:
+        return None
+    frames = load_frames(frames_path)
+    truth, _ = adopt_recording(frames, truth_config(label["effects"], label.get("camera")),
+                               keep_units=True)
+    # both without a drawn pixel pattern: no fit can know the camera's pixel by pixel, so
+    # each gets the estimate the frames show (measured: with its exact pattern the truth led
+    # an answer by 90 mnats/px that its own halo improved by 0.4)
+    costs = [_judged_costs(frames, config.with_effect("pixel_offset", offset_std_mm=0.0,
+                                                      gain_std=0.0))
+             for config in (truth, ToFConfig.from_dict(result["config_after"]))]
+    total = n = 0.0
+    for (c_truth, m_truth), (c_tool, m_tool) in zip(*costs, strict=True):
+        both = m_truth & m_tool
+        total += float((c_tool - c_truth)[both].sum())
+        n += int(both.sum())
+    return 1000.0 * total / n if n else None
+
+
+def _judged_costs(frames: list[Any], config: ToFConfig
+                  ) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per held-out frame: (H, W) cost under ``config`` with its noise law refitted, the
+    level free and the moving camera's fixed pattern out (:func:`truth_margin`), and the
+    mask of the pixels it judges."""
+    problem, _ = build_problem(frames, config)
+    problem = problem.judged(free_level=True, free_pattern=camera_moves(problem.predictors))
+    noise = fit_effect(problem, "noise_model")
+    refit = noise.config if not noise.note and noise.train_gain > 0 else None
+    masks = problem.masks("test")
+    return [(problem.cost_map(i, refit), masks[i]) for i in range(len(masks))]
+
+
 def _score_case(label: dict[str, Any], result: dict[str, Any],
                 oracle: dict[str, float]) -> dict[str, Any]:
     truth = [e["name"] for e in label["effects"]]
@@ -163,6 +213,8 @@ def _score_case(label: dict[str, Any], result: dict[str, Any],
                                     for v in oracle.get("visibility", {}).values()),
                                    default=None),
            "oracle_excess_after_mm": oracle["interior_excess_rmse_before_mm"],
+           # the data's preference for the truth over the answer (None: not measured)
+           "truth_margin_mnats": oracle.get("truth_margin_mnats"),
            "global_mean_residual_mm": result["location"]["global"].get("mean_mm"),
            "global_variance_ratio": result["location"]["global"].get("variance_ratio"),
            "parameter_error": {}}
@@ -231,6 +283,10 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
             per_effect.setdefault(r["truth"][0], []).append(r["top1"])
     static = [r for r in ctrl if r.get("static")]
     visible = [r for r in eff if (r.get("visibility_mnats") or -np.inf) >= MIN_SCORE]
+    measured = [r for r in eff if r.get("truth_margin_mnats") is not None]
+    # a miss is decidable when the data prefer the truth to the answer by the tool's own
+    # threshold; the others are ties of the likelihood no fitting could break
+    decidable = [r for r in measured if r["top1"] or r["truth_margin_mnats"] >= MIN_SCORE]
     return {
         "cases": len(rows), "controls": len(ctrl), "effect_cases": len(eff),
         "by_base": _by_base(rows),
@@ -246,6 +302,10 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "top1_accuracy_visible_effect_cases": _mean([r["top1"] for r in visible]),
         "top1_accuracy_faint_effect_cases": _mean([r["top1"] for r in eff
                                                    if r not in visible]),
+        "effect_cases_with_truth_margin": len(measured),
+        "decidable_effect_cases": len(decidable),
+        "top1_accuracy_decidable_effect_cases": _mean([r["top1"] for r in decidable]),
+        "misses_the_truth_fits_no_better": sum(1 for r in measured if r not in decidable),
         "false_alarm_rate": _mean([not r["top1"] for r in ctrl]),
         "both_found_rate_two_effect_cases": _mean([r["both_found"] for r in doubles]),
         "parameter_error_median": _median(perr),
@@ -302,16 +362,23 @@ def reselect(result: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _oracle_of(run_dir: Path, label: dict[str, Any]) -> dict[str, Any]:
-    """The case's oracle metrics and its effects' visibility (:func:`effect_visibility`):
-    stored beside its answer by the run, else computed now and stored (a run made before the
-    visibility was measured gets it on its first ``--merge``)."""
+def _oracle_of(run_dir: Path, label: dict[str, Any],
+               result: dict[str, Any]) -> dict[str, Any]:
+    """The case's oracle metrics, its effects' visibility (:func:`effect_visibility`) and the
+    truth's margin over the tool's answer ``result`` (:func:`truth_margin`): stored beside the
+    answer by the run, else computed now and stored (a run made before one was measured gets
+    it on its first ``--merge``)."""
     stored = run_dir / "results" / f"case_{label['case']:03d}.oracle.json"
     oracle = json.loads(stored.read_text()) if stored.exists() else None
+    frames = run_dir / label["file"]
     if oracle is None:
-        oracle = oracle_metrics(run_dir / label["file"], label)
+        oracle = oracle_metrics(frames, label)
+    missing = "visibility" not in oracle or "truth_margin_mnats" not in oracle
     if "visibility" not in oracle:
-        oracle["visibility"] = effect_visibility(run_dir / label["file"], label)
+        oracle["visibility"] = effect_visibility(frames, label)
+    if "truth_margin_mnats" not in oracle:
+        oracle["truth_margin_mnats"] = truth_margin(frames, label, result)
+    if missing:
         stored.write_text(json.dumps(_clean(oracle), indent=2))
     return oracle
 
@@ -325,8 +392,8 @@ def merge_runs(run_dirs: list[str | Path], out_dir: str | Path) -> dict[str, Any
         for label in json.loads((d / "labels.json").read_text()):
             res = d / "results" / f"case_{label['case']:03d}.json"
             if res.exists():
-                row = _score_case(label, reselect(json.loads(res.read_text())),
-                                  _oracle_of(d, label))
+                answer = reselect(json.loads(res.read_text()))
+                row = _score_case(label, answer, _oracle_of(d, label, answer))
                 row["case"] = f"{d.name}/{label['case']}"
                 rows.append(row)
     if not rows:
@@ -416,6 +483,8 @@ def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int
         # an interrupted run can be scored by --merge without recomputing it
         oracle = oracle_metrics(out / labels[-1]["file"], labels[-1])
         oracle["visibility"] = effect_visibility(out / labels[-1]["file"], labels[-1])
+        oracle["truth_margin_mnats"] = truth_margin(out / labels[-1]["file"], labels[-1],
+                                                    result)
         (out / "results" / f"case_{i:03d}.oracle.json").write_text(
             json.dumps(_clean(oracle), indent=2))
         if progress is not None:
@@ -424,7 +493,7 @@ def run_benchmark(n_cases: int, seed: int, out_dir: str | Path, *, n_frames: int
     rows = []
     for label in json.loads((out / "labels.json").read_text()):
         result = json.loads((out / "results" / f"case_{label['case']:03d}.json").read_text())
-        rows.append(_score_case(label, result, _oracle_of(out, label)))
+        rows.append(_score_case(label, result, _oracle_of(out, label, result)))
     summary = summarise(rows)
     doc = _clean({"summary": summary, "cases": rows, "seed": seed, "n_frames": n_frames,
                   "base": base,
