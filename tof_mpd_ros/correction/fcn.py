@@ -241,7 +241,7 @@ def _kernel_mean_shift_torch(logits: torch.Tensor, range_m: torch.Tensor, valid:
     diff = windows[:, 0] - r_mm[..., None, None]
     near = (windows[:, 1] > 0) & (diff.abs() <= gate_mm)
     lg = logits.permute(0, 2, 3, 1).unflatten(-1, (k, k))
-    # the shift by the maximum of all k² logits keeps exp <= 1 (see _shift_rows)
+    # the shift by the maximum of all k² logits keeps exp <= 1 (as in _pixel_shift)
     weight = torch.exp(lg - lg.amax(dim=(-2, -1), keepdim=True)) * near
     num = (weight * diff).sum(dim=(-2, -1))
     return num / weight.sum(dim=(-2, -1)).clamp(min=1e-30) * valid
@@ -255,9 +255,10 @@ class _KernelMeanShift(torch.autograd.Function):
     def forward(ctx: Any, logits: torch.Tensor, range_m: torch.Tensor, valid: torch.Tensor,
                 gate_mm: float) -> torch.Tensor:
         nhwc, r_pad, v_pad = _kernel_arrays(logits, range_m, valid)
-        out = np.zeros(r_pad.shape[0:1] + nhwc.shape[1:3], np.float32)
-        _run_rows(_shift_rows, out.shape[0] * out.shape[1], nhwc, r_pad, v_pad,
-                  np.float32(gate_mm), out)
+        out = np.zeros(nhwc.shape[:3], np.float32)
+        none = np.zeros((0, 0, 0), np.float32)
+        _run_rows(out.shape[0] * out.shape[1], nhwc, r_pad, v_pad, np.float32(gate_mm), none,
+                  out, np.zeros((0, 0, 0, 0), np.float32))
         ctx.save_for_backward(logits, range_m, valid)
         ctx.gate_mm = gate_mm
         return torch.from_numpy(out)
@@ -268,8 +269,8 @@ class _KernelMeanShift(torch.autograd.Function):
         nhwc, r_pad, v_pad = _kernel_arrays(logits, range_m, valid)
         g = np.ascontiguousarray(grad.detach().float().numpy())
         out = np.zeros(nhwc.shape, np.float32)
-        _run_rows(_shift_grad_rows, g.shape[0] * g.shape[1], nhwc, r_pad, v_pad,
-                  np.float32(ctx.gate_mm), g, out)
+        _run_rows(g.shape[0] * g.shape[1], nhwc, r_pad, v_pad, np.float32(ctx.gate_mm), g,
+                  np.zeros((0, 0, 0), np.float32), out)
         return torch.from_numpy(out).permute(0, 3, 1, 2), None, None, None
 
 
@@ -285,18 +286,18 @@ def _kernel_arrays(logits: torch.Tensor, range_m: torch.Tensor, valid: torch.Ten
     return nhwc, r_pad, v_pad
 
 
-def _run_rows(kernel: Any, n_rows: int, *args: Any) -> None:
-    """``kernel`` over ``n_rows`` frame rows, interleaved over torch's thread count."""
+def _run_rows(n_rows: int, *args: Any) -> None:
+    """:func:`_kernel_rows` over ``n_rows`` frame rows, interleaved over torch's thread
+    count."""
     workers = torch.get_num_threads()
-    run_chunks("fcn-kernel", workers, kernel, min(n_rows, 4 * workers), *args)
+    run_chunks("fcn-kernel", workers, _kernel_rows, min(n_rows, 4 * workers), *args)
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _gated_weights(nhwc: np.ndarray, r_pad: np.ndarray, v_pad: np.ndarray, gate: np.float32,
-                   k: int, b: int, y: int, x: int, weight: np.ndarray, diff: np.ndarray
-                   ) -> float:
-    """Fill ``weight`` (unnormalised softmax of the gated neighbours, 0 for the others) and
-    ``diff`` (neighbour - pixel, mm) of pixel (b, y, x); returns the sum of the weights."""
+def _pixel_shift(nhwc: np.ndarray, r_pad: np.ndarray, v_pad: np.ndarray, gate: np.float32,
+                 k: int, b: int, y: int, x: int, weight: np.ndarray, diff: np.ndarray) -> float:
+    """The kernel mean's shift of pixel (b, y, x), mm; fills ``weight`` (the softmax over the
+    gated neighbours, 0 for the others) and ``diff`` (neighbour - pixel, mm)."""
     n = k * k
     r0 = r_pad[b, y + k // 2, x + k // 2]
     top = nhwc[b, y, x, 0]
@@ -314,56 +315,41 @@ def _gated_weights(nhwc: np.ndarray, r_pad: np.ndarray, v_pad: np.ndarray, gate:
             else:
                 weight[i] = 0.0
             i += 1
-    return max(den, np.float32(1e-30))
+    inv = np.float32(1.0) / max(den, np.float32(1e-30))   # one division, not k²
+    shift = np.float32(0.0)
+    for i in range(n):
+        weight[i] *= inv
+        shift += weight[i] * diff[i]
+    return shift
 
 
 @numba.njit(cache=True, nogil=True)
-def _shift_rows(first: int, stride: int, n_chunks: int, nhwc: np.ndarray, r_pad: np.ndarray,
-                v_pad: np.ndarray, gate: np.float32, out: np.ndarray) -> None:
-    """Forward of :func:`kernel_mean_shift` on every ``stride``-th chunk of rows from
-    ``first`` (chunk c holds rows c, c + n_chunks, ... of the B·H rows)."""
-    _, h, w, n = nhwc.shape
+def _kernel_rows(first: int, stride: int, n_chunks: int, nhwc: np.ndarray, r_pad: np.ndarray,
+                 v_pad: np.ndarray, gate: np.float32, grad: np.ndarray, shift_out: np.ndarray,
+                 grad_out: np.ndarray) -> None:
+    """:func:`kernel_mean_shift` on every ``stride``-th chunk of rows from ``first`` (chunk c
+    holds rows c, c + n_chunks, ... of the B·H rows). Forward when ``grad_out`` is empty:
+    the shift into ``shift_out`` (B, H, W). Else its gradient in the logits into ``grad_out``
+    (B, H, W, k²) given ``grad`` (B, H, W): ∂shift/∂l_i = w_i (d_i - shift) at a valid
+    pixel, 0 elsewhere."""
+    n_frames, h, w, n = nhwc.shape
     k = int(math.sqrt(n) + 0.5)
     pad = k // 2
+    backward = grad_out.size > 0
     weight = np.empty(n, np.float32)
     diff = np.empty(n, np.float32)
     for c in range(first, n_chunks, stride):
-        for row in range(c, out.shape[0] * h, n_chunks):
+        for row in range(c, n_frames * h, n_chunks):
             b, y = row // h, row % h
             for x in range(w):
-                if v_pad[b, y + pad, x + pad] <= 0:
+                if v_pad[b, y + pad, x + pad] <= 0 or (backward and grad[b, y, x] == 0):
                     continue
-                den = _gated_weights(nhwc, r_pad, v_pad, gate, k, b, y, x, weight, diff)
-                num = np.float32(0.0)
-                for i in range(n):
-                    num += weight[i] * diff[i]
-                out[b, y, x] = num / den
-
-
-@numba.njit(cache=True, nogil=True)
-def _shift_grad_rows(first: int, stride: int, n_chunks: int, nhwc: np.ndarray,
-                     r_pad: np.ndarray, v_pad: np.ndarray, gate: np.float32, grad: np.ndarray,
-                     out: np.ndarray) -> None:
-    """Gradient of :func:`kernel_mean_shift` in the logits (rows as :func:`_shift_rows`):
-    ∂shift/∂l_i = w_i (d_i - shift) at a valid pixel, 0 elsewhere."""
-    _, h, w, n = nhwc.shape
-    k = int(math.sqrt(n) + 0.5)
-    pad = k // 2
-    weight = np.empty(n, np.float32)
-    diff = np.empty(n, np.float32)
-    for c in range(first, n_chunks, stride):
-        for row in range(c, grad.shape[0] * h, n_chunks):
-            b, y = row // h, row % h
-            for x in range(w):
-                if v_pad[b, y + pad, x + pad] <= 0 or grad[b, y, x] == 0:
+                shift = _pixel_shift(nhwc, r_pad, v_pad, gate, k, b, y, x, weight, diff)
+                if not backward:
+                    shift_out[b, y, x] = shift
                     continue
-                den = _gated_weights(nhwc, r_pad, v_pad, gate, k, b, y, x, weight, diff)
-                shift = np.float32(0.0)
                 for i in range(n):
-                    weight[i] /= den
-                    shift += weight[i] * diff[i]
-                for i in range(n):
-                    out[b, y, x, i] = grad[b, y, x] * weight[i] * (diff[i] - shift)
+                    grad_out[b, y, x, i] = grad[b, y, x] * weight[i] * (diff[i] - shift)
 
 
 def _median_per_frame(values: np.ndarray, valid: np.ndarray) -> np.ndarray:
