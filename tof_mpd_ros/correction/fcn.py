@@ -256,9 +256,9 @@ class _KernelMeanShift(torch.autograd.Function):
                 gate_mm: float) -> torch.Tensor:
         nhwc, r_pad, v_pad = _kernel_arrays(logits, range_m, valid)
         out = np.zeros(nhwc.shape[:3], np.float32)
-        none = np.zeros((0, 0, 0), np.float32)
-        _run_rows(out.shape[0] * out.shape[1], nhwc, r_pad, v_pad, np.float32(gate_mm), none,
-                  out, np.zeros((0, 0, 0, 0), np.float32))
+        no_grad = np.zeros((0, 0, 0), np.float32)
+        _run_rows(out.shape[0] * out.shape[1], nhwc, r_pad, v_pad, np.float32(gate_mm),
+                  no_grad, out, np.zeros((0, 0, 0, 0), np.float32))
         ctx.save_for_backward(logits, range_m, valid)
         ctx.gate_mm = gate_mm
         return torch.from_numpy(out)
@@ -315,6 +315,9 @@ def _pixel_shift(nhwc: np.ndarray, r_pad: np.ndarray, v_pad: np.ndarray, gate: n
             else:
                 weight[i] = 0.0
             i += 1
+    # the pixel itself (difference 0) is always a neighbour of a valid pixel, so den > 0;
+    # should every kept logit lie ~87 below an excluded one, the weights underflow and the
+    # pixel keeps its own range (shift 0): the safe answer
     inv = np.float32(1.0) / max(den, np.float32(1e-30))   # one division, not k²
     shift = np.float32(0.0)
     for i in range(n):
