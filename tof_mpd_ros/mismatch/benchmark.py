@@ -262,6 +262,19 @@ def _by_base(rows: list[dict[str, Any]]) -> dict[str, dict[str, Any]]:
     return out
 
 
+def _decidable(eff: list[dict[str, Any]]) -> dict[str, Any]:
+    """Of the effect cases with a truth margin (:func:`truth_margin`): how many are
+    decidable (right, or the data prefer the truth to the answer by the tool's own
+    threshold), top-1 on them, and the misses that are ties of the likelihood, which no
+    fitting could break."""
+    measured = [r for r in eff if r.get("truth_margin_mnats") is not None]
+    decidable = [r for r in measured if r["top1"] or r["truth_margin_mnats"] >= MIN_SCORE]
+    return {"effect_cases_with_truth_margin": len(measured),
+            "decidable_effect_cases": len(decidable),
+            "top1_accuracy_decidable_effect_cases": _mean([r["top1"] for r in decidable]),
+            "misses_the_truth_fits_no_better": len(measured) - len(decidable)}
+
+
 def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Aggregate scores of scored cases."""
     ctrl = [r for r in rows if not r["truth"]]
@@ -283,10 +296,6 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
             per_effect.setdefault(r["truth"][0], []).append(r["top1"])
     static = [r for r in ctrl if r.get("static")]
     visible = [r for r in eff if (r.get("visibility_mnats") or -np.inf) >= MIN_SCORE]
-    measured = [r for r in eff if r.get("truth_margin_mnats") is not None]
-    # a miss is decidable when the data prefer the truth to the answer by the tool's own
-    # threshold; the others are ties of the likelihood no fitting could break
-    decidable = [r for r in measured if r["top1"] or r["truth_margin_mnats"] >= MIN_SCORE]
     return {
         "cases": len(rows), "controls": len(ctrl), "effect_cases": len(eff),
         "by_base": _by_base(rows),
@@ -302,10 +311,7 @@ def summarise(rows: list[dict[str, Any]]) -> dict[str, Any]:
         "top1_accuracy_visible_effect_cases": _mean([r["top1"] for r in visible]),
         "top1_accuracy_faint_effect_cases": _mean([r["top1"] for r in eff
                                                    if r not in visible]),
-        "effect_cases_with_truth_margin": len(measured),
-        "decidable_effect_cases": len(decidable),
-        "top1_accuracy_decidable_effect_cases": _mean([r["top1"] for r in decidable]),
-        "misses_the_truth_fits_no_better": sum(1 for r in measured if r not in decidable),
+        **_decidable(eff),
         "false_alarm_rate": _mean([not r["top1"] for r in ctrl]),
         "both_found_rate_two_effect_cases": _mean([r["both_found"] for r in doubles]),
         "parameter_error_median": _median(perr),
