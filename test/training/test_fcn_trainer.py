@@ -283,8 +283,11 @@ def test_two_processes_train_in_step(tmp_path: Path) -> None:
     gap = max(float((v - ranks[0]["state"][k]).abs().max())
               for k, v in one.net.state_dict().items())
     print(f"largest parameter difference, 2 ranks vs 1 process: {gap:.2e}")
+    # Adam amplifies those rounding differences over the 36 steps: changes of one ulp in the
+    # kernel mean, or in a box filter's sums, moved this gap between 4e-7 and 8e-5 (session
+    # 17); missing steps differ by the steps themselves (one epoch fewer, 6 steps: 2.6e-2)
     for key, value in one.net.state_dict().items():
-        torch.testing.assert_close(value, ranks[0]["state"][key], atol=1e-5, rtol=1e-4,
+        torch.testing.assert_close(value, ranks[0]["state"][key], atol=2e-4, rtol=1e-4,
                                    msg=key)
     assert h_one[-1]["loss_nll"] == pytest.approx(history[-1]["loss_nll"], rel=1e-3)
 
