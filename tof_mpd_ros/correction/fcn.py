@@ -259,14 +259,16 @@ class _KernelMeanShift(torch.autograd.Function):
         no_grad = np.zeros((0, 0, 0), np.float32)
         _run_rows(out.shape[0] * out.shape[1], nhwc, r_pad, v_pad, np.float32(gate_mm),
                   no_grad, out, np.zeros((0, 0, 0, 0), np.float32))
-        ctx.save_for_backward(logits, range_m, valid)
+        ctx.save_for_backward(logits)
+        ctx.padded = r_pad, v_pad   # data, not tensors: built once for both passes
         ctx.gate_mm = gate_mm
         return torch.from_numpy(out)
 
     @staticmethod
     def backward(ctx: Any, grad: torch.Tensor) -> tuple[torch.Tensor | None, ...]:
-        logits, range_m, valid = ctx.saved_tensors
-        nhwc, r_pad, v_pad = _kernel_arrays(logits, range_m, valid)
+        (logits,) = ctx.saved_tensors
+        nhwc = _nhwc(logits)
+        r_pad, v_pad = ctx.padded
         g = np.ascontiguousarray(grad.detach().float().numpy())
         out = np.zeros(nhwc.shape, np.float32)
         _run_rows(g.shape[0] * g.shape[1], nhwc, r_pad, v_pad, np.float32(ctx.gate_mm), g,
@@ -278,12 +280,17 @@ def _kernel_arrays(logits: torch.Tensor, range_m: torch.Tensor, valid: torch.Ten
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The kernels' inputs: (B, H, W, k²) float32 logits (a view of channels-last ones) and the
     (B, H + 2p, W + 2p) float32 range (mm) and validity, zero beyond the frame (p = k // 2)."""
-    nhwc = logits.detach().float().permute(0, 2, 3, 1).numpy()
+    nhwc = _nhwc(logits)
     pad = math.isqrt(logits.shape[1]) // 2
     width = ((0, 0), (pad, pad), (pad, pad))
     r_pad = np.pad(range_m.detach().float().numpy() * np.float32(1000.0), width)
     v_pad = np.pad(valid.detach().float().numpy(), width)
     return nhwc, r_pad, v_pad
+
+
+def _nhwc(logits: torch.Tensor) -> np.ndarray:
+    """(B, H, W, k²) float32 view of (B, k², H, W) logits (no copy when channels-last)."""
+    return logits.detach().float().permute(0, 2, 3, 1).numpy()
 
 
 def _run_rows(n_rows: int, *args: Any) -> None:

@@ -182,8 +182,9 @@ def _judged_costs(frames: list[Any], config: ToFConfig
     problem = problem.judged(free_level=True, free_pattern=camera_moves(problem.predictors))
     noise = fit_effect(problem, "noise_model")
     refit = noise.config if not noise.note and noise.train_gain > 0 else None
-    masks = problem.masks("test")
-    return [(problem.cost_map(i, refit), masks[i]) for i in range(len(masks))]
+    # training frames (no held-out pixel) are not predicted: their cost is never read
+    return [(problem.cost_map(i, refit) if m.any() else np.zeros(m.shape), m)
+            for i, m in enumerate(problem.masks("test"))]
 
 
 def _score_case(label: dict[str, Any], result: dict[str, Any],
