@@ -614,7 +614,8 @@ class _Search:
         coordinate descent. The profile was fitted before any scene physics, so it has already
         absorbed what it could of it (a halo of 0.086 over 37 px became a −4 mm offset and a
         wiggle, and a descent from there found a halo of 0.007: session 18); started from the
-        camera's nominal values, the candidate takes its own share first. The model reached,
+        camera's given values (the nominal cell's, one-shot), the candidate takes its own share
+        first. The model reached,
         or None without a start or a fit."""
         if self.profile_start is None:
             return None
