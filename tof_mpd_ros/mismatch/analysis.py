@@ -588,35 +588,31 @@ class _Search:
         kept."""
         if result.note or not self.refit:
             return result
-        ends = [self._descend(result.config, result.effect, box)[0]]
+        ends = [self._descend(result.config, result.effect, box)]
         restarted = self._restart(result.effect, box)
         if restarted is not None:
             ends.append(restarted)
-        fits = [result if config is result.config else self._scored(result, config)
-                for config in ends]
+        base_cost = self._train_cost(self.problem.base)
+        fits = [result if config is result.config else
+                score_fit(self.problem, FitResult(
+                    result.effect, config, plain_params(config, result.effect),
+                    result.n_params, train_gain=base_cost - cost))
+                for config, cost in ends]
         # the held-out pixels choose between the two ends as they choose between candidates:
         # the two fit the training pixels alike when the profile and the candidate trade the
         # same residual (a wiggle of 9 mm and a halo of 0.05, or a wiggle of 5.5 mm and the
         # true halo of 0.10: 1.4 mnats/px apart on training pixels, 8 on held-out ones)
         return max(fits, key=lambda r: r.score)
 
-    def _scored(self, result: FitResult, config: ToFConfig) -> FitResult:
-        """``result``'s candidate as fitted in ``config``, scored against the current model."""
-        base_cost = self._train_cost(self.problem.base)
-        refitted = FitResult(result.effect, config, plain_params(config, result.effect),
-                             result.n_params, train_gain=base_cost - self._train_cost(config))
-        return score_fit(self.problem, refitted)
-
     def _restart(self, effect: str, box: Sequence[tuple[float, float]] | None
-                 ) -> ToFConfig | None:
+                 ) -> tuple[ToFConfig, float] | None:
         """The candidate's second descent, in the other order: the profile put back to its
         values before it was fitted (``profile_start``), ``effect`` fitted there, then the same
         coordinate descent. The profile was fitted before any scene physics, so it has already
         absorbed what it could of it (a halo of 0.086 over 37 px became a −4 mm offset and a
         wiggle, and a descent from there found a halo of 0.007: session 18); started from the
         camera's given values (the nominal cell's, one-shot), the candidate takes its own share
-        first. The model reached,
-        or None without a start or a fit."""
+        first. The model reached and its training cost, or None without a start or a fit."""
         if self.profile_start is None:
             return None
         current = self.problem.base
@@ -626,7 +622,7 @@ class _Search:
         fitted = fit_effect(_rebased(self.problem, reset), effect, box=box)
         if fitted.note:
             return None
-        return self._descend(fitted.config, effect, box)[0]
+        return self._descend(fitted.config, effect, box)
 
     def _descend(self, config: ToFConfig, effect: str,
                  box: Sequence[tuple[float, float]] | None) -> tuple[ToFConfig, float]:

@@ -267,7 +267,8 @@ def _decidable(eff: list[dict[str, Any]]) -> dict[str, Any]:
     """Of the effect cases with a truth margin (:func:`truth_margin`): how many are
     decidable (right, or the data prefer the truth to the answer by the tool's own
     threshold), top-1 on them, and the misses that are ties of the likelihood, which no
-    fitting could break."""
+    fitting could break. Decidable is of the whole model: the truth's lead may be its
+    camera's, not its effect's (docs/mismatch.md, session 18)."""
     measured = [r for r in eff if r.get("truth_margin_mnats") is not None]
     decidable = [r for r in measured if r["top1"] or r["truth_margin_mnats"] >= MIN_SCORE]
     return {"effect_cases_with_truth_margin": len(measured),
