@@ -247,7 +247,7 @@ def main() -> None:
                         "(default 1, the node's default)")
     parser.add_argument("--parallel-frames", type=int, default=1,
                         help="the node's parallel_frames parameter (frames corrected at once)")
-    parser.add_argument("--precision", choices=("float32", "bfloat16"), default="float32",
+    parser.add_argument("--precision", choices=("float32", "bfloat16", "int8"), default="float32",
                         help="the node's precision parameter")
     parser.add_argument("--json", help="also write the numbers to this JSON file")
     parser.add_argument("--role", choices=("listener", "publisher"), default="listener",

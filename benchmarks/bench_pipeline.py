@@ -59,7 +59,7 @@ from tof_mpd_ros.correction import edges as edges_module
 from tof_mpd_ros.correction import geodesic as geodesic_module
 from tof_mpd_ros.correction import networks as networks_module
 from tof_mpd_ros.correction import pipeline as pipeline_module
-from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
+from tof_mpd_ros.correction.pipeline import PRECISIONS, CorrectionModel, correct
 from tof_mpd_ros.evaluation.components import g_probabilities
 from tof_mpd_ros.machine import cpu_model, cpuinfo
 
@@ -519,8 +519,9 @@ def main() -> None:
                              "(~20 s CPU each at 180x140)")
     parser.add_argument("--threads", type=int, default=None,
                         help="torch intra-op threads (default: torch's own choice)")
-    parser.add_argument("--precision", choices=("float32", "bfloat16"), default="float32",
-                        help="fast path's first-layer GEMMs (bfloat16: AVX512-BF16/AMX)")
+    parser.add_argument("--precision", choices=PRECISIONS, default="float32",
+                        help="fast path's first-layer GEMMs (bfloat16: AVX512-BF16/AMX; "
+                             "int8: VNNI/AMX-INT8)")
     parser.add_argument("--json", type=Path, help="also write the numbers to this JSON file")
     args = parser.parse_args()
     PRECISION["value"] = args.precision

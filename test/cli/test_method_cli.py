@@ -86,6 +86,14 @@ def test_calibrate_train_correct_evaluate(files: dict[str, Path],
     # Calibration removes the simulated systematic error on these scenes.
     summary = results["summary_5mm"]
     assert summary["calibrated"]["whole"] > summary["raw"]["whole"]
+    # the same networks in int8 score what float32 scores, and the file says which ran
+    code, out, _ = run(capsys, "evaluate", files["test"], "--weights", d / "w.npz", "-o",
+                       d / "eval8", "--precision", "int8")
+    assert code == 0
+    low = json.loads((d / "eval8" / "results.json").read_text())
+    assert low["precision"] == "int8" and results["precision"] == "float32"
+    for stage in ("F", "full"):
+        assert abs(low["summary_5mm"][stage]["whole"] - summary[stage]["whole"]) < 0.005
 
 
 def test_sim_predict_writes_the_same_kind_of_file(files: dict[str, Path],

@@ -171,3 +171,39 @@ def test_fast_path_kernels_hold_the_same_numbers() -> None:
             y1 = min(h, y0 + 3)
             encode_rows(r_pad, la_pad, y0, y1, CFG.patch_size, consts, out[y0 * w:y1 * w])
         np.testing.assert_array_equal(out, feats[:, :240].numpy())   # bit for bit
+
+
+def test_int8_rows_are_the_float_rows_quantised() -> None:
+    """encode_rows_int8 == rint(254 x) of the float encoding, element for element; equal
+    neighbours and invalid ones read exactly 0, a saturated difference +-127."""
+    from tof_mpd_ros.correction.encoding import (
+        INT8_SCALE,
+        encode_rows_int8,
+        padded_planes,
+        plane_constants,
+        quantize_rows,
+    )
+
+    r, a = _random_frame(9)
+    r[5, 5:12] = r[5, 4]                             # equal neighbours: x = 0 exactly
+    r[8, 8] = r[8, 9] + 400.0                        # a saturated step: x = -0.5 to its right
+    feats, _ = encode_frame(r, a, CFG)
+    xf = feats[:, :240].numpy()
+    planes = padded_planes(r[None], a[None], CFG)
+    h, w = r.shape
+    out = np.full((h * w, 240), 99, np.int8)
+    row = np.empty(240, np.float32)
+    for y0 in range(0, h, 4):
+        y1 = min(h, y0 + 4)
+        encode_rows_int8(planes.range_mm[0], planes.log_amplitude[0], y0, y1, CFG.patch_size,
+                         plane_constants(CFG), row, out[y0 * w:y1 * w])
+    want = np.rint(xf.astype(np.float32) * np.float32(INT8_SCALE))   # half to even
+    np.testing.assert_array_equal(out.astype(np.float64), want)
+    assert out.min() == -127 and out.max() == 127 and (out[xf == 0] == 0).all()
+    assert (out[8 * w + 8, :] != 0).any()
+    np.testing.assert_array_equal(out[(xf == 0).all(1)], 0)           # invalid centres
+    q = np.empty_like(out)
+    quantize_rows(np.ascontiguousarray(xf), q)                        # the one quantisation
+    np.testing.assert_array_equal(q, out)
+    # a step is 1/254 of x: 100/254 mm of range difference at D = 50 mm
+    assert abs(2 * CFG.range_clip_mm / INT8_SCALE - 0.3937) < 1e-4

@@ -119,6 +119,61 @@ def test_patch_nets_equal_modules(backend: str) -> None:
         PatchNets(f, g, 9, 20, backend=backend)
     with pytest.raises(InputError, match="precision"):
         PatchNets(f, g, 11, 20, "float16", backend=backend)
+    if backend == "torch":
+        with pytest.raises(InputError, match=r"int8.*CPU \(numba backend\) only"):
+            PatchNets(f, g, 11, 20, "int8", backend=backend)
+        return
+    out8 = _run_patch_nets(PatchNets(f, g, 11, 20, "int8", backend=backend), r, a, cfg)
+    assert np.abs(out8.correction - out.correction)[ok].max() < 0.01   # mm (measured 0.002)
+    assert np.abs(out8.best - out.best)[ok].max() < 0.002             # measured 1.4e-4
+    assert not out8.best[~ok].any()
+
+
+def test_int8_first_layer_is_the_exact_integer_product() -> None:
+    """int8: per-row weights rint(w / step_j), step_j = max|w_j| / 127, F's rows followed by
+    their residuals at step_j / 254; inputs rint(254 x); summed exactly in int32. The scales
+    take the sums back to W x: within the roundings for G's rows, ~127x closer for F's."""
+    from tof_mpd_ros.correction.networks import PatchNets
+
+    f, g = RangeRecoveryNet(generator=_gen(11)), BoundaryNets(generator=_gen(12))
+    nets = PatchNets(f, g, 11, 20, "int8")
+    x = (torch.rand(300, 240, generator=_gen(3)) - 0.5).contiguous()
+    x[0] = 0.5                                           # the extremes of the encoding
+    x[1] = -0.5
+    got = nets.first_layer(x)
+    assert got.dtype == torch.int32 and got.shape == (240, 300)      # 200 rows + F's 40
+    w = nets.weights.first.astype(np.float64)
+    step = np.abs(w).max(1) / 127
+    high = np.rint(w / step[:, None])
+    low = np.rint((w[:40] - high[:40] * step[:40, None]) / (step[:40, None] / 254))
+    assert np.abs(low).max() <= 127
+    wq = np.concatenate([high, low]).astype(np.int64)
+    xq = np.rint(x.numpy().astype(np.float32) * np.float32(254.0)).astype(np.int64)
+    np.testing.assert_array_equal(got.numpy(), wq @ xq.T)
+    np.testing.assert_allclose(nets.scale, np.concatenate([step, step[:40] / 254]) / 254,
+                               rtol=1e-6)
+    terms = got.numpy() * nets.scale[:, None].astype(np.float64)
+    approx = terms[:200].copy()
+    approx[:40] += terms[200:]
+    exact_x = w @ (xq.T / 254.0)                         # the same inputs, exact weights
+    err = np.abs(approx - exact_x)
+    # each G term off by at most step/2 * |x| <= step / 4; F's by step / 1016
+    assert (err[40:] <= 240 * step[40:, None] / 4).all()
+    assert (err[:40] <= 240 * step[:40, None] / 1016).all()
+    assert err[:40].mean() < err[40:].mean() / 50
+    exact = w @ x.numpy().astype(np.float64).T
+    assert np.abs(approx - exact).mean() < 0.01 * np.abs(exact).mean()
+    with pytest.raises(InputError, match=r"within \[-0.5, 0.5\]"):
+        nets.first_layer(x * 3)
+
+
+def test_int8_refused_where_the_gemm_does_not_run(monkeypatch) -> None:
+    from tof_mpd_ros.correction import networks
+
+    monkeypatch.setattr(networks, "int8_gemm_available", lambda: False)
+    f, g = RangeRecoveryNet(generator=_gen(11)), BoundaryNets(generator=_gen(12))
+    with pytest.raises(InputError, match=r"torch\._int_mm"):
+        networks.PatchNets(f, g, 11, 20, "int8")
 
 
 def test_numba_backend_is_cpu_only() -> None:

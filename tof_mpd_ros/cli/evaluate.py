@@ -9,6 +9,10 @@ from pathlib import Path
 
 from .output import add_output
 
+# correction.pipeline.PRECISIONS, spelt out so that the CLI starts without torch (a test holds
+# the two equal)
+PRECISIONS = ("float32", "bfloat16", "int8")
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     evaluate = subparsers.add_parser(
@@ -23,6 +27,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     evaluate.add_argument("recordings", type=Path, nargs="+", help="test recordings / .npz")
     add_output(evaluate, "output directory")
     evaluate.add_argument("--weights", type=Path, help="weights file (default: shipped)")
+    evaluate.add_argument("--precision", choices=PRECISIONS, default="float32",
+                          help="the networks' arithmetic (default float32; bfloat16 either "
+                               "kind, int8 the patch kind: measure what it costs on your data)")
     evaluate.set_defaults(func=run_evaluate)
 
 
@@ -38,10 +45,11 @@ def run_evaluate(args: argparse.Namespace) -> int:
     if first is not None:
         model = fit_to_frames(model, first.range_mm.shape)
         frames = itertools.chain([first], frames)
-    evaluation = evaluate_model(model, frames)
+    evaluation = evaluate_model(model, frames, precision=args.precision)
     write_component_report(evaluation, args.output,
                            extra={"recordings": [str(p) for p in args.recordings],
-                                  "weights": str(args.weights or "shipped")})
+                                  "weights": str(args.weights or "shipped"),
+                                  "precision": args.precision})
     print(json.dumps({"output": str(args.output), "model_kind": evaluation.kind,
                       "n_frames": evaluation.n_frames, "summary_5mm": evaluation.summary(5.0),
                       "edges_max_f1": {k: c.max_f1 for k, c in evaluation.edges.items()},

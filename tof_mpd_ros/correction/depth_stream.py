@@ -38,10 +38,10 @@ from . import geodesic
 from .edges import edge_map_from_best
 from .fcn import FCNCorrectionModel
 from .pipeline import (
-    PRECISIONS,
     CorrectionModel,
     GeodesicParams,
     central_window,
+    check_precision,
     correct,
     processed_window,
 )
@@ -232,8 +232,8 @@ class DepthStreamCorrector:
             weights file's); None keeps the model's. Patch kind only (an fcn model has none:
             its ``geodesic`` is None).
         crop: (width, height) of the processed central window; None = the model's frame.
-        precision: ``"float32"`` or ``"bfloat16"`` (the networks' arithmetic,
-            :func:`~.pipeline.correct`).
+        precision: one of :data:`~.pipeline.PRECISIONS` (the networks' arithmetic,
+            :func:`~.pipeline.correct`; ``"int8"`` the patch kind only).
 
     Raises:
         InputError: an unknown convention or precision, ``threads`` < 0, ``geodesic`` for an
@@ -250,8 +250,7 @@ class DepthStreamCorrector:
         if threads < 0:
             raise InputError(f"threads must be >= 0, got {threads}")
         self.threads = threads
-        if precision not in PRECISIONS:
-            raise InputError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+        check_precision(model, precision)
         self.precision = precision
         self.model = model
         self.kind = model.kind

@@ -30,11 +30,14 @@ import torch
 from torch import nn
 
 from ..errors import InputError
+from .encoding import INT8_SCALE, quantize_rows
 
 RANGE_HIDDEN = (40, 10, 10)
 BOUNDARY_HIDDEN = (40, 20)
 N_ORIENTATIONS = 4
 TARGET_CLIP_MM = 15.0
+# The arithmetic of the first-layer GEMM (PatchNets); everything after it is float32.
+PATCH_PRECISIONS = ("float32", "bfloat16", "int8")
 
 
 def _uniform_(t: torch.Tensor, bound: float, generator: torch.Generator | None) -> None:
@@ -280,6 +283,26 @@ def _mkl_linear(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return torch.mm(weight, x.t())
 
 
+def _int8_linear(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``weight @ x.T`` of int8 operands, exact in int32 (``torch._int_mm``: oneDNN's int8 GEMM,
+    AVX512-VNNI / AMX-INT8 where the CPU has them). ``x.T`` is passed as a transposed view,
+    so the (rows, n) result comes channel-major with no copy of the band."""
+    return torch._int_mm(weight, x.t())
+
+
+def int8_gemm_available() -> bool:
+    """Whether this torch build runs :func:`_int8_linear` here and gets the exact product."""
+    try:
+        gen = torch.Generator().manual_seed(0)
+        w = torch.randint(-127, 128, (24, 64), generator=gen, dtype=torch.int8)
+        x = torch.randint(-127, 128, (40, 64), generator=gen, dtype=torch.int8)
+        got = _int8_linear(w, x)
+        return got.dtype == torch.int32 and bool(torch.equal(got.long(),
+                                                             w.long() @ x.long().t()))
+    except (RuntimeError, AttributeError):   # op missing or unsupported in this build
+        return False
+
+
 def _pick_linear(dtype: torch.dtype) -> object:
     """oneDNN's GEMM when it runs here and agrees with ``torch.mm``, else ``torch.mm``."""
     try:
@@ -398,26 +421,42 @@ def _dense(w: np.ndarray, b: np.ndarray, n_out: int, n_in: int, src: np.ndarray,
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _first_activations(first: np.ndarray, c0: int, m: int, q0: int, frame: FrameBins,
-                       wts: FusedWeights, hidden: np.ndarray) -> None:  # pragma: no cover
-    """``hidden[j, :m] = relu(first[j, c0:c0 + m] + bias[j] (+ F's one-hot lookups, j < nf))``
-    for pixels ``q0 .. q0 + m`` of the frame."""
+def _first_activations(first: np.ndarray, scale: np.ndarray, c0: int, m: int, q0: int,
+                       frame: FrameBins, wts: FusedWeights,
+                       hidden: np.ndarray) -> None:  # pragma: no cover
+    """``hidden[j, :m] = relu(first[j, c0:c0 + m] * scale[j] + bias[j] (+ F's one-hot
+    lookups, j < nf))`` for pixels ``q0 .. q0 + m`` of the frame. ``first`` is float32 with
+    scale 1 (which leaves every value as it was), or the int8 GEMM's exact int32 sums (below
+    2**24 in magnitude, so exact in float32) with the weights' and the inputs' scales; then
+    F's rows j < nf also have a residual row ``rows + j`` (scale ``scale[rows + j]``)."""
     nf = wts.f_dims[0]
+    rows = wts.first.shape[0]
+    residual = first.shape[0] > rows
     zero = np.float32(0.0)
-    for j in range(first.shape[0]):
+    for j in range(rows):
         src = first[j, c0:c0 + m]
         dst = hidden[j]
         bj = wts.bias[j]
-        if j < nf:
+        sj = scale[j]
+        if j < nf and residual:
+            tr = wts.table_range[j]
+            ta = wts.table_amp[j]
+            low = first[rows + j, c0:c0 + m]
+            sl = scale[rows + j]
+            for px in range(m):
+                v = (np.float32(src[px]) * sj + np.float32(low[px]) * sl + bj
+                     + tr[frame.bin_range[q0 + px]] + ta[frame.bin_amplitude[q0 + px]])
+                dst[px] = max(v, zero)
+        elif j < nf:
             tr = wts.table_range[j]
             ta = wts.table_amp[j]
             for px in range(m):
-                v = (src[px] + bj + tr[frame.bin_range[q0 + px]]
+                v = (np.float32(src[px]) * sj + bj + tr[frame.bin_range[q0 + px]]
                      + ta[frame.bin_amplitude[q0 + px]])
                 dst[px] = max(v, zero)
         else:
             for px in range(m):
-                dst[px] = max(src[px] + bj, zero)
+                dst[px] = max(np.float32(src[px]) * sj + bj, zero)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -471,21 +510,21 @@ def _boundary_chunk(wts: FusedWeights, m: int, q0: int, valid: np.ndarray, scrat
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _heads_kernel(first: np.ndarray, n: int, start: int, frame: FrameBins, wts: FusedWeights,
-                  do_f: bool, do_g: bool, out: HeadOutputs,
+def _heads_kernel(first: np.ndarray, scale: np.ndarray, n: int, start: int,
+                  frame: FrameBins, wts: FusedWeights, do_f: bool, do_g: bool, out: HeadOutputs,
                   scratch: Scratch) -> None:  # pragma: no cover
     """Everything after the first-layer GEMM for pixels ``start .. start + n`` of a frame.
 
     ``first`` (rows, >= n) holds the first layers' ``W x`` (F's rows first, then each G
-    head's); per chunk of ``scratch.hidden.shape[1]`` pixels (cache-resident) this adds the
-    biases and F's one-hot terms, applies ReLU, runs F's remaining layers and the G heads, and
-    writes into ``out``.
+    head's), row j in units of ``scale[j]``; per chunk of ``scratch.hidden.shape[1]`` pixels
+    (cache-resident) this scales and adds the biases and F's one-hot terms, applies ReLU, runs
+    F's remaining layers and the G heads, and writes into ``out``.
     """
     ch = scratch.hidden.shape[1]
     for c0 in range(0, n, ch):
         m = min(ch, n - c0)
         q0 = start + c0
-        _first_activations(first, c0, m, q0, frame, wts, scratch.hidden)
+        _first_activations(first, scale, c0, m, q0, frame, wts, scratch.hidden)
         if do_f:
             _range_chunk(wts, m, q0, scratch, out.correction)
         if do_g:
@@ -524,12 +563,19 @@ class PatchNets:
     flipped (so the final range differs by tens of mm next to them): it misses the "same edges,
     1e-3 mm" agreement with the oracle that the float32 default keeps. Opt-in only.
 
+    ``precision="int8"`` (CPU, numba backend): the band comes as int8 rows
+    (``encoding.encode_rows_int8``, ``rint(254 x)``), each first-layer row's weights are
+    rounded to int8 on their own scale ``max |w_j| / 127`` (F's rows with a second, residual
+    int8 row: :meth:`_setup_int8`), and the GEMM sums exactly in int32 (:func:`_int8_linear`);
+    the kernel takes the sums back to float32 with the scales. The layers after the first stay
+    float32. Opt-in; its agreement with float32 is measured in docs/performance.md.
+
     Args:
         range_net: the trained F.
         boundary_nets: the trained G heads.
         patch_size: P of the encoding.
         n_bins: one-hot width of the encoding.
-        precision: ``"float32"`` or ``"bfloat16"``.
+        precision: ``"float32"``, ``"bfloat16"`` or ``"int8"`` (CPU and numba only).
         device: where the GEMM (and the torch backend) runs.
         backend: ``"numba"`` or ``"torch"``; None = numba on the CPU, torch elsewhere.
         chunk: pixels per chunk of the numba kernel.
@@ -539,8 +585,8 @@ class PatchNets:
                  patch_size: int, n_bins: int, precision: str = "float32",
                  device: torch.device | str = "cpu", backend: str | None = None,
                  chunk: int = 256) -> None:
-        if precision not in ("float32", "bfloat16"):
-            raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
+        if precision not in PATCH_PRECISIONS:
+            raise InputError(f"precision must be one of {PATCH_PRECISIONS}, got {precision!r}")
         self.device = torch.device(device)
         self.backend = backend or ("numba" if self.device.type == "cpu" else "torch")
         if self.backend not in ("numba", "torch") or (
@@ -548,14 +594,48 @@ class PatchNets:
             raise InputError(f"backend must be 'numba' (CPU) or 'torch', got {backend!r} on "
                              f"{self.device}")
         self.weights = fuse_weights(range_net, boundary_nets, patch_size, n_bins)
-        self.dtype = torch.bfloat16 if precision == "bfloat16" else torch.float32
-        self.weight = torch.from_numpy(self.weights.first).to(self.device, self.dtype)
+        self.precision = precision
         self.rows, self.n_inputs = self.weights.first.shape
         self.chunk = int(chunk)
+        # The kernel's per-row unit of the GEMM output (1: the GEMM is float).
+        self.scale = np.ones(self.rows, np.float32)
+        if precision == "int8":
+            self._setup_int8()
+            return
+        self.dtype = torch.bfloat16 if precision == "bfloat16" else torch.float32
+        self.weight = torch.from_numpy(self.weights.first).to(self.device, self.dtype)
         self.linear = _pick_linear(self.dtype) if self.device.type == "cpu" else _mkl_linear
         if self.backend == "torch":
             self.on_device = FusedWeights(*(torch.from_numpy(np.asarray(v)).to(self.device)
                                             for v in self.weights))
+
+    def _setup_int8(self) -> None:
+        """Per-row symmetric int8 weights, a residual int8 row for each of F's rows, and the
+        scales that undo the roundings.
+
+        F's first layer gets its weights' rounding residual as a second int8 row (step / 254,
+        so the weights are kept to ~15 bits): its error moves R_F directly, while a G head's
+        is read only through a threshold. Measured on simulated 320x240 frames with the shipped
+        weights: R_F off by > 0.5 mm on 0.15-0.23 % of the pixels with one row, <0.01 % with
+        two (docs/performance.md); it costs 40 of 240 GEMM rows.
+        """
+        if self.backend != "numba":
+            raise InputError("precision 'int8' runs on the CPU (numba backend) only, got "
+                             f"backend {self.backend!r} on {self.device}")
+        if not int8_gemm_available():
+            raise InputError("precision 'int8' needs torch._int_mm (oneDNN's int8 GEMM), which "
+                             "this torch build does not run here; use float32 or bfloat16")
+        first = self.weights.first.astype(np.float64)
+        step = np.abs(first).max(axis=1) / 127.0
+        step[step == 0] = 1.0                      # an all-zero row stays zero at any scale
+        high = np.rint(first / step[:, None])
+        nf = int(self.weights.f_dims[0])
+        step_low = step[:nf] / 254.0               # |residual| <= step / 2 -> |q| <= 127
+        low = np.rint((first[:nf] - high[:nf] * step[:nf, None]) / step_low[:, None])
+        self.dtype = torch.int8
+        self.weight = torch.from_numpy(np.concatenate([high, low]).astype(np.int8))
+        self.scale = (np.concatenate([step, step_low]) / INT8_SCALE).astype(np.float32)
+        self.linear = _int8_linear
 
     def scratch(self) -> Scratch | None:
         """Work arrays of one worker for :meth:`heads` (allocate once, reuse every band)."""
@@ -569,15 +649,27 @@ class PatchNets:
                        np.empty((2, ch), np.float32))
 
     def first_layer(self, x: torch.Tensor) -> torch.Tensor:
-        """First-layer ``W x`` (no bias) of n pixels.
+        """First-layer ``W x`` (no bias) of n pixels, row j in units of ``scale[j]``.
 
         Args:
-            x: (n, 2 M) float32 pixel-major ``[x_R x_A]`` (contiguous rows, CPU).
+            x: (n, 2 M) pixel-major ``[x_R x_A]`` (contiguous rows, CPU): float32, or for
+                ``"int8"`` already quantised (``encoding.encode_rows_int8``); float32 rows
+                are then quantised here (``encoding.quantize_rows``).
 
         Returns:
-            (rows, n) float32 tensor on the device (channel-major).
+            (rows, n) tensor on the device (channel-major): float32, or int32 for ``"int8"``.
         """
-        return self.linear(self.weight, x.to(self.device, self.dtype)).float()
+        if self.precision != "int8":
+            return self.linear(self.weight, x.to(self.device, self.dtype)).float()
+        if x.dtype != torch.int8:
+            xf = np.ascontiguousarray(x.numpy(), np.float32)
+            if xf.size and not np.abs(xf).max() <= 0.5 + 1e-6:
+                raise InputError("int8 inputs must be encoding rows, within [-0.5, 0.5]; got "
+                                 f"values up to {np.abs(xf).max():.3g}")
+            q = np.empty(xf.shape, np.int8)
+            quantize_rows(xf, q)
+            x = torch.from_numpy(q)
+        return self.linear(self.weight, x)
 
     def heads(self, first: torch.Tensor, n: int, start: int, frame: FrameBins, do_f: bool,
               do_g: bool, out: HeadOutputs, scratch: Scratch | None) -> None:
@@ -592,7 +684,8 @@ class PatchNets:
             scratch: from :meth:`scratch`.
         """
         if self.backend == "numba":
-            _heads_kernel(first.numpy(), n, start, frame, self.weights, do_f, do_g, out,
+            _heads_kernel(first.numpy(), self.scale, n, start, frame, self.weights, do_f, do_g,
+                          out,
                           scratch)
         else:
             _heads_torch(self.on_device, first, slice(start, start + n), frame, do_f, do_g,

@@ -33,8 +33,8 @@ Steps 2-4 run in an :class:`_Engine` cached per model state, shape, precision an
 
 The result agrees with the straightforward oracle (``test/oracles/reference_pipeline.py``): the
 same edges and the corrected range within ~1e-4 mm (float32 summation order only; measured
-6.1e-5 mm, one float32 ulp at 256-512 mm). ``precision="bfloat16"`` is opt-in and misses that
-agreement (see ``PatchNets``).
+6.1e-5 mm, one float32 ulp at 256-512 mm). ``precision="bfloat16"`` and ``"int8"`` are opt-in
+and miss that agreement (see ``PatchNets``, docs/performance.md).
 """
 
 from __future__ import annotations
@@ -52,9 +52,22 @@ from ..calibration.intrinsic import IntrinsicCalibration, valid_measurement
 from ..errors import CalibrationError, InputError
 from ..thread_pools import shared_pool
 from ..validation import check_array
-from .encoding import EncodingConfig, encode_rows, frame_planes, plane_constants
+from .encoding import (
+    EncodingConfig,
+    encode_rows,
+    encode_rows_int8,
+    frame_planes,
+    plane_constants,
+)
 from .fcn import FCNCorrectionModel, resolve_to_a_side, run_fcn
-from .networks import BoundaryNets, FrameBins, HeadOutputs, PatchNets, RangeRecoveryNet
+from .networks import (
+    PATCH_PRECISIONS,
+    BoundaryNets,
+    FrameBins,
+    HeadOutputs,
+    PatchNets,
+    RangeRecoveryNet,
+)
 
 # Pixels per band on the CPU: the band's encodings (1440 x 240 float32, 1.4 MB) and the
 # GEMM output (200 x 1440) stay in L2/L3 between the encoding, the GEMM and the small layers.
@@ -165,8 +178,19 @@ class CorrectionResult:
     sigma_mm: np.ndarray | None = None
 
 
-#: the networks' arithmetic :func:`correct` offers
-PRECISIONS = ("float32", "bfloat16")
+#: the networks' arithmetic :func:`correct` offers (``"int8"``: the patch kind on the CPU)
+PRECISIONS = PATCH_PRECISIONS
+#: the fcn kind's (its convolutions under autocast)
+FCN_PRECISIONS = ("float32", "bfloat16")
+
+
+def check_precision(model: CorrectionModel | FCNCorrectionModel, precision: str) -> None:
+    """Raise InputError unless ``model``'s kind runs in ``precision``."""
+    if precision not in PRECISIONS:
+        raise InputError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+    if isinstance(model, FCNCorrectionModel) and precision not in FCN_PRECISIONS:
+        raise InputError(f"precision {precision!r} is the patch kind's; the fcn kind runs in "
+                         f"one of {FCN_PRECISIONS}")
 
 
 def check_frame_pair(model_shape: tuple[int, int], range_mm: object, amplitude: object
@@ -212,9 +236,10 @@ def correct(
         device: torch device for the networks (CPU default; GPU optional).
         use_range_net: apply F (off: R_F = R, "geodesic filtering alone").
         use_boundary: apply G + geodesic filtering (off: R-hat = R_F, "F alone").
-        precision: ``"float32"`` (default: matches the reference within 1e-3 mm) or
+        precision: ``"float32"`` (default: matches the reference within 1e-3 mm),
             ``"bfloat16"`` (opt-in, faster first-layer GEMMs on AVX512-BF16/AMX CPUs, F off by
-            a few hundredths of a mm; see :class:`~.networks.PatchNets`).
+            a few hundredths of a mm) or ``"int8"`` (opt-in, the patch kind on the CPU: int8
+            first-layer GEMM on AVX512-VNNI/AMX-INT8; see :class:`~.networks.PatchNets`).
         threads: worker threads on the CPU (default: torch's thread count, capped by the
             usable CPUs).
         geodesic: edge thresholds and geodesic filter constants to use instead of
@@ -224,11 +249,11 @@ def correct(
         A :class:`CorrectionResult` shaped like the input.
 
     Raises:
-        InputError: see :func:`check_frame_pair`; an unknown ``precision``; ``threads`` < 1.
+        InputError: see :func:`check_frame_pair`; an unknown ``precision`` (or ``"int8"`` for
+            the fcn kind, or off the CPU); ``threads`` < 1.
     """
     r, a = check_frame_pair(model.shape, range_mm, amplitude)
-    if precision not in PRECISIONS:
-        raise InputError(f"precision must be 'float32' or 'bfloat16', got {precision!r}")
+    check_precision(model, precision)
     if isinstance(model, FCNCorrectionModel):
         return _correct_fcn(model, r, a, device, use_range_net, precision)
     params = model.geodesic if geodesic is None else geodesic
@@ -374,7 +399,7 @@ class _Engine:
 
     Args:
         model: the model (its networks are read, not kept).
-        precision: ``"float32"`` or ``"bfloat16"``.
+        precision: one of :data:`PRECISIONS`.
         workers: worker threads on the CPU (1 on other devices).
         device: where the networks run.
         backend: :class:`~.networks.PatchNets`' backend (None: the device's own).
@@ -402,7 +427,11 @@ class _Engine:
         rows = max(1, BAND_PIXELS // w) if device.type == "cpu" else h
         self.bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
         self.workers = max(1, min(workers if device.type == "cpu" else 1, len(self.bands)))
-        self.x = [torch.empty((rows * w, self.nets.n_inputs)) for _ in range(self.workers)]
+        self.x = [torch.empty((rows * w, self.nets.n_inputs), dtype=self.nets.dtype
+                              if self.nets.dtype == torch.int8 else torch.float32)
+                  for _ in range(self.workers)]
+        # int8 bands are encoded a pixel at a time through a float32 row (encode_rows_int8).
+        self.row = [np.empty(self.nets.n_inputs, np.float32) for _ in range(self.workers)]
         self.scratch = [self.nets.scratch() for _ in range(self.workers)]
         self.lock = threading.Lock()
 
@@ -413,7 +442,11 @@ class _Engine:
         xn = x.numpy()
         for y0, y1 in self.bands[t::self.workers]:
             n = (y1 - y0) * w
-            encode_rows(self.r_pad, self.la_pad, y0, y1, self.patch_size, self.consts, xn)
+            if xn.dtype == np.int8:
+                encode_rows_int8(self.r_pad, self.la_pad, y0, y1, self.patch_size, self.consts,
+                                 self.row[t], xn)
+            else:
+                encode_rows(self.r_pad, self.la_pad, y0, y1, self.patch_size, self.consts, xn)
             first = self.nets.first_layer(x[:n])
             self.nets.heads(first, n, y0 * w, self.frame, do_f, do_g, self.out,
                             self.scratch[t])

@@ -178,12 +178,14 @@ class ComponentTally:
         thresholds: accuracy-curve thresholds in mm.
         diagnostics: also pool the stages' accuracy by distance to the edges and G's operating
             point (``regions`` and ``g_operating_point`` of the result; empty when False).
+        precision: the networks' arithmetic in every stage (``pipeline.PRECISIONS``).
     """
 
     def __init__(self, model: CorrectionModel | FCNCorrectionModel,
                  thresholds: tuple[float, ...] = DEFAULT_THRESHOLDS_MM, *,
-                 diagnostics: bool = True) -> None:
+                 diagnostics: bool = True, precision: str = "float32") -> None:
         self.model = model
+        self.precision = precision
         self.kind = model.kind
         self.stage_names = STAGES_BY_KIND[self.kind]
         self.diagnostics = diagnostics
@@ -207,7 +209,8 @@ class ComponentTally:
         """Stage -> (H, W) range of one frame (the patch kind runs G alone once more)."""
         if self.kind == "fcn":
             return {"raw": range_mm, "calibrated": full.calibrated_mm, "fcn": full.range_mm}
-        g_only = correct(self.model, range_mm, amplitude, use_range_net=False)
+        g_only = correct(self.model, range_mm, amplitude, use_range_net=False,
+                         precision=self.precision)
         return {"raw": range_mm, "calibrated": full.calibrated_mm, "F": full.range_f_mm,
                 "geodesic+G": g_only.range_mm, "full": full.range_mm}
 
@@ -221,7 +224,7 @@ class ComponentTally:
             reference_mm: (H, W) float32 reference range in mm, NaN = missing.
         """
         start = time.perf_counter()
-        full = correct(self.model, range_mm, amplitude)
+        full = correct(self.model, range_mm, amplitude, precision=self.precision)
         seconds = time.perf_counter() - start
         stages = self._stages_of(range_mm, amplitude, full)
         gt, gt_group = ground_truth_edges(reference_mm)
@@ -283,14 +286,15 @@ class ComponentTally:
 
 def evaluate_model(model: CorrectionModel | FCNCorrectionModel, frames: Iterable[ToFFrame], *,
                    thresholds: tuple[float, ...] = DEFAULT_THRESHOLDS_MM,
-                   n_examples: int = 3) -> ComponentEvaluation:
+                   n_examples: int = 3, precision: str = "float32") -> ComponentEvaluation:
     """Run every stage on every frame with a reference and pool the paper's metrics
-    (:class:`ComponentTally`; either kind of model); the first ``n_examples`` frames are kept
-    for plots (with ``edges_g`` for the patch kind, ``sigma_mm`` for the fcn kind).
+    (:class:`ComponentTally`; either kind of model, the networks in ``precision``); the first
+    ``n_examples`` frames are kept for plots (with ``edges_g`` for the patch kind, ``sigma_mm``
+    for the fcn kind).
 
     Frames without a reference are skipped (nothing to score against).
     """
-    tally = ComponentTally(model, thresholds)
+    tally = ComponentTally(model, thresholds, precision=precision)
     examples: list[dict[str, np.ndarray]] = []
     for frame in frames:
         if frame.reference_mm is None:

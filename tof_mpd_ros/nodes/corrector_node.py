@@ -100,9 +100,13 @@ PARAMETERS = (
     P("input_depth", 5, "Alias: default history depth of the three input subscriptions "
       "(sensor-data QoS: 5); qos_overrides.<topic>.subscription.depth overrides it per "
       "topic." + _QOS_READ_ONLY, min_value=1, max_value=1000, read_only=True),
-    P("precision", "float32", "Arithmetic of the networks: float32, or bfloat16 (CPUs with "
-      "BF16 instructions such as Zen 4: about 1.3x faster, output within 0.5 mm of float32 on "
-      "99.99 % of the pixels, docs/performance.md).", choices=("float32", "bfloat16")),
+    P("precision", "float32", "Arithmetic of the networks: float32, bfloat16 (CPUs with "
+      "AVX512-BF16 or AMX), or int8 (patch kind: the first-layer GEMM in int8 on VNNI, "
+      "1.3-1.4x faster end to end, docs/performance.md). Both keep R_F within 0.5 mm of "
+      "float32 on >= 99.99 % of the pixels and the accuracy within 5 mm; the edge map flips "
+      "at a few threshold pixels, which moves the final range by > 0.5 mm on 0.1-0.5 % of "
+      "the pixels.",
+      choices=("float32", "bfloat16", "int8")),
     P("crop_width", 0, "Width of the processed central window of each frame, pixels; 0 = the "
       "weights' whole frame (the shipped weights: the full 320x240 sensor). The paper's "
       "crop is 180 x 140. A frame smaller than the window is processed whole.",
