@@ -277,3 +277,40 @@ def test_correct_runs_the_one_inference_path(monkeypatch) -> None:
     res = correct(model, r, a, threads=1)
     assert calls and set(calls) == {"numba"}
     assert res.edges.any()
+
+
+def test_frames_corrected_at_once_get_an_engine_each(geodesic_stub, monkeypatch) -> None:
+    """Two threads correcting with one model hold two engines at the same time (they would
+    queue on one engine's buffers), and each gets what it gets alone."""
+    import threading
+
+    from tof_mpd_ros.correction import pipeline
+
+    model = _model()
+    frames = [_frame(s) for s in (3, 4)]
+    alone = [correct(model, r, a, threads=1).range_mm for r, a in frames]
+    both_inside = threading.Barrier(2, timeout=20)
+    real = pipeline._Engine.networks
+
+    def meet_then_run(self, *args):  # inside the engine's lock: one engine would deadlock
+        both_inside.wait()           # raises BrokenBarrierError unless both hold an engine
+        return real(self, *args)
+
+    monkeypatch.setattr(pipeline._Engine, "networks", meet_then_run)
+    got: dict[int, np.ndarray] = {}
+
+    def run(i: int) -> None:
+        got[i] = correct(model, *frames[i], threads=1).range_mm
+
+    workers = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    for t in workers:
+        t.start()
+    for t in workers:
+        t.join()
+    assert not both_inside.broken
+    for i in range(2):
+        np.testing.assert_array_equal(got[i], alone[i])
+    assert len(pipeline._ENGINES[id(model)][2]) == 2
+    monkeypatch.setattr(pipeline._Engine, "networks", real)
+    correct(model, *frames[0], threads=1)          # a lone caller reuses a free engine
+    assert len(pipeline._ENGINES[id(model)][2]) == 2

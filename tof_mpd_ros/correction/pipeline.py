@@ -13,7 +13,8 @@ Either network can be switched off for the paper's component analysis. Invalid p
 range or amplitude <= 0) are NaN in every range output and 0 in ``confidence``.
 
 Steps 2-4 run in an :class:`_Engine` cached per model state, shape, precision and device (issue
-8):
+8); an engine corrects one frame at a time, and callers correcting frames at once (the
+node's ``parallel_frames``) each take a free engine of the model's, built when none is free:
 
 * compiled kernels fill NaN-padded range / log-amplitude planes and the one-hot bins into
   preallocated buffers (``encoding.frame_planes``);
@@ -39,9 +40,11 @@ and miss that agreement (see ``PatchNets``, docs/performance.md).
 
 from __future__ import annotations
 
+import contextlib
 import os
 import threading
 import weakref
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -265,9 +268,9 @@ def correct(
     if any(p.device != dev for p in (*model.range_net.parameters(),
                                      *model.boundary_nets.parameters())):
         model.to(dev)
-    engine = _engine(model, precision, _worker_count(threads), dev)
-    parts = [engine.correct(calibrated[i], a3[i], use_range_net, use_boundary, params)
-             for i in range(r3.shape[0])]
+    with _engine(model, precision, _worker_count(threads), dev) as engine:
+        parts = [engine.correct(calibrated[i], a3[i], use_range_net, use_boundary, params)
+                 for i in range(r3.shape[0])]
     fields = [np.stack(x) for x in zip(*parts, strict=True)]
     result = CorrectionResult(*fields)
     if single:
@@ -363,8 +366,8 @@ def _worker_count(threads: int | None) -> int:
 
 
 _ENGINES_LOCK = threading.Lock()
-# id(model) -> (weak reference to the model, cache key, engine).
-_ENGINES: dict[int, tuple[weakref.ref, tuple, _Engine]] = {}
+# id(model) -> (weak reference to the model, cache key, its engines).
+_ENGINES: dict[int, tuple[weakref.ref, tuple, list[_Engine]]] = {}
 
 
 def _model_key(model: CorrectionModel, precision: str, workers: int,
@@ -376,26 +379,44 @@ def _model_key(model: CorrectionModel, precision: str, workers: int,
             tuple((id(p), p.data_ptr(), p._version) for p in params))
 
 
+@contextlib.contextmanager
 def _engine(model: CorrectionModel, precision: str, workers: int,
-            device: torch.device) -> _Engine:
-    """The cached engine of ``model`` (rebuilt when its weights change in place)."""
+            device: torch.device) -> Iterator[_Engine]:
+    """A free cached engine of ``model``, held for the ``with`` block.
+
+    Engines are rebuilt when the weights change in place. Two frames corrected at once (two
+    threads) get two engines, so they run side by side instead of queueing on one engine's
+    buffers; a model keeps as many engines as it was ever asked for at once.
+    """
     key = _model_key(model, precision, workers, device)
+    mid = id(model)
     with _ENGINES_LOCK:
-        entry = _ENGINES.get(id(model))
-        if entry is not None and entry[0]() is model and entry[1] == key:
-            return entry[2]
-    engine = _Engine(model, precision, workers, device)
-    with _ENGINES_LOCK:
-        mid = id(model)
-        _ENGINES[mid] = (weakref.ref(model, lambda _ref: _ENGINES.pop(mid, None)), key, engine)
-    return engine
+        entry = _ENGINES.get(mid)
+        if entry is None or entry[0]() is not model or entry[1] != key:
+            entry = (weakref.ref(model, lambda _ref: _ENGINES.pop(mid, None)), key, [])
+            _ENGINES[mid] = entry
+        engine = next((e for e in entry[2] if not e.busy), None)
+        if engine is not None:
+            engine.busy = True
+    if engine is None:          # built outside the lock: other models' callers need not wait
+        engine = _Engine(model, precision, workers, device)
+        engine.busy = True
+        with _ENGINES_LOCK:
+            if _ENGINES.get(mid) is entry:
+                entry[2].append(engine)
+    try:
+        yield engine
+    finally:
+        with _ENGINES_LOCK:
+            engine.busy = False
 
 
 class _Engine:
     """Fused weights and every buffer of the correction for one model state, shape and device.
 
     Nothing is allocated per frame but the returned arrays (and the GEMM's band output, which
-    the allocator recycles). One frame at a time (a lock serialises concurrent callers).
+    the allocator recycles). One frame at a time: :func:`_engine` hands a free engine to each
+    caller, and a lock serialises callers that share one directly.
 
     Args:
         model: the model (its networks are read, not kept).
@@ -434,6 +455,7 @@ class _Engine:
         self.row = [np.empty(self.nets.n_inputs, np.float32) for _ in range(self.workers)]
         self.scratch = [self.nets.scratch() for _ in range(self.workers)]
         self.lock = threading.Lock()
+        self.busy = False           # held by a caller of _engine (under _ENGINES_LOCK)
 
     def _work(self, t: int, do_f: bool, do_g: bool) -> None:
         """Worker ``t``: bands t, t + workers, ... (encode, GEMM, small layers)."""
