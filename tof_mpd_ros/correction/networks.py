@@ -20,6 +20,7 @@ band of pixel-major encodings, then everything after it, on the CPU in one compi
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from typing import NamedTuple
@@ -290,8 +291,10 @@ def _int8_linear(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return torch._int_mm(weight, x.t())
 
 
+@functools.cache
 def int8_gemm_available() -> bool:
-    """Whether this torch build runs :func:`_int8_linear` here and gets the exact product."""
+    """Whether this torch build runs :func:`_int8_linear` here and gets the exact product
+    (checked once per process)."""
     try:
         gen = torch.Generator().manual_seed(0)
         w = torch.randint(-127, 128, (24, 64), generator=gen, dtype=torch.int8)
@@ -685,8 +688,7 @@ class PatchNets:
         """
         if self.backend == "numba":
             _heads_kernel(first.numpy(), self.scale, n, start, frame, self.weights, do_f, do_g,
-                          out,
-                          scratch)
+                          out, scratch)
         else:
             _heads_torch(self.on_device, first, slice(start, start + n), frame, do_f, do_g,
                          out)

@@ -448,8 +448,8 @@ class _Engine:
         rows = max(1, BAND_PIXELS // w) if device.type == "cpu" else h
         self.bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
         self.workers = max(1, min(workers if device.type == "cpu" else 1, len(self.bands)))
-        self.x = [torch.empty((rows * w, self.nets.n_inputs), dtype=self.nets.dtype
-                              if self.nets.dtype == torch.int8 else torch.float32)
+        band_dtype = torch.int8 if precision == "int8" else torch.float32
+        self.x = [torch.empty((rows * w, self.nets.n_inputs), dtype=band_dtype)
                   for _ in range(self.workers)]
         # int8 bands are encoded a pixel at a time through a float32 row (encode_rows_int8).
         self.row = [np.empty(self.nets.n_inputs, np.float32) for _ in range(self.workers)]
