@@ -139,12 +139,13 @@ def time_size(h: int, w: int, args: argparse.Namespace) -> dict[str, Any]:
                                       "p90_ms": ms[int(0.9 * (len(ms) - 1))]}
     trained = trained_models(h, w, args)
     scene = scene_frames(*trained["patch"].shape, args.agreement_views)
-    for kind, precision in ROWS:
-        if precision != "float32":
-            model = trained[kind]
-            sized = scene if model.shape == trained["patch"].shape else scene_frames(
-                *model.shape, args.agreement_views)
-            out[f"{kind}/{precision}"]["agreement"] = agreement(model, sized, precision)
+    for kind in ("patch", "fcn"):
+        model = trained[kind]
+        sized = scene if model.shape == trained["patch"].shape else scene_frames(
+            *model.shape, args.agreement_views)
+        reduced = [p for k, p in ROWS if k == kind and p != "float32"]
+        for precision, numbers in agreement(model, sized, reduced).items():
+            out[f"{kind}/{precision}"]["agreement"] = numbers
     out["agreement_weights"] = {"patch": str(args.weights_patch or "shipped"),
                                 "fcn": str(args.weights_fcn or "untrained")}
     for kind, precision in ROWS:
@@ -202,27 +203,32 @@ def trained_models(h: int, w: int, args: argparse.Namespace) -> dict[str, Any]:
     return {"patch": patch, "fcn": fcn}
 
 
-def agreement(model: Any, frames: list[Any], precision: str) -> dict[str, float]:
-    """Against float32 on ``frames``: shares of valid pixels within 0.5 mm (final range and
-    R_F), and the shares within 5 mm of the reference in float32 and in ``precision``."""
-    near = near_f = total = 0
-    within = {"float32": [0, 0], precision: [0, 0]}
+def agreement(model: Any, frames: list[Any], precisions: list[str]
+              ) -> dict[str, dict[str, float]]:
+    """Per reduced precision, against float32 on ``frames`` (corrected in float32 once):
+    shares of valid pixels within 0.5 mm (final range and R_F), and the shares within 5 mm of
+    the reference in float32 and in that precision."""
+    counts = {p: np.zeros(3, np.int64) for p in precisions}     # near, near R_F, valid
+    within = {p: 0 for p in ("float32", *precisions)}
+    scored_total = 0
     for f in frames:
         ref = correct(model, f.range_mm, f.amplitude)
-        low = correct(model, f.range_mm, f.amplitude, precision=precision)
-        ok = ref.valid & low.valid
-        near += int((np.abs(ref.range_mm - low.range_mm)[ok] <= 0.5).sum())
-        near_f += int((np.abs(ref.range_f_mm - low.range_f_mm)[ok] <= 0.5).sum())
-        total += int(ok.sum())
         scored = np.isfinite(f.reference_mm)
-        for name, res in (("float32", ref), (precision, low)):
+        scored_total += int(scored.sum())
+        results = {"float32": ref}
+        for p in precisions:
+            low = results[p] = correct(model, f.range_mm, f.amplitude, precision=p)
+            ok = ref.valid & low.valid
+            counts[p] += [(np.abs(ref.range_mm - low.range_mm)[ok] <= 0.5).sum(),
+                          (np.abs(ref.range_f_mm - low.range_f_mm)[ok] <= 0.5).sum(), ok.sum()]
+        for name, res in results.items():
             err = np.abs(res.range_mm - f.reference_mm)[scored]   # NaN (invalid): a miss
-            within[name][0] += int((err <= 5.0).sum())
-            within[name][1] += int(scored.sum())
-    return {"final_within_0.5mm": near / max(total, 1),
-            "range_f_within_0.5mm": near_f / max(total, 1),
-            "within_5mm_float32": within["float32"][0] / max(within["float32"][1], 1),
-            "within_5mm_reduced": within[precision][0] / max(within[precision][1], 1)}
+            within[name] += int((err <= 5.0).sum())
+    scored_total = max(scored_total, 1)
+    return {p: {"final_within_0.5mm": counts[p][0] / max(counts[p][2], 1),
+                "range_f_within_0.5mm": counts[p][1] / max(counts[p][2], 1),
+                "within_5mm_float32": within["float32"] / scored_total,
+                "within_5mm_reduced": within[p] / scored_total} for p in precisions}
 
 
 def print_size(label: str, res: dict[str, Any], peak: dict[str, Any], gemm: float) -> None:
