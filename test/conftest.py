@@ -77,17 +77,15 @@ except ImportError:  # pragma: no cover - torch is a hard dependency, but keep c
 
 
 def real_data_dir(name: str, env_var: str, is_layout: Callable[[Path], bool]) -> Path:
-    """A folder of real frames kept beside the repository, ``../shared/realdata/NAME``
-    relative to this checkout, or wherever ``env_var`` points. It is neither in the package
-    nor in an installable extra, so a checkout without it skips the tests that need it (with
-    this reason) instead of failing; beside the shared data, as in the README's test
-    environment, nothing skips."""
-    beside = Path(__file__).resolve().parents[2] / "shared" / "realdata" / name
-    candidate = Path(os.environ.get(env_var, beside))
-    if is_layout(candidate):
-        return candidate
-    pytest.skip(f"the real frames ../shared/realdata/{name} (beside the repository, or "
-                f"{env_var}) are not present")
+    """A folder of real frames: the repository's copy, ``data/realdata/NAME`` (MIT-licensed
+    public frames, see its README and LICENSE), or wherever ``env_var`` points (another
+    capture of the same layout). Committed, so the tests that need it run on every clone."""
+    default = Path(__file__).resolve().parents[1] / "data" / "realdata" / name
+    candidate = Path(os.environ.get(env_var, default))
+    if not is_layout(candidate):
+        pytest.fail(f"{candidate} does not hold the real frames' layout ({env_var} set to "
+                    "another folder, or a checkout without data/realdata)")
+    return candidate
 
 
 @pytest.fixture(scope="session")

@@ -1,5 +1,5 @@
 """The corrector node on a second real camera: the Analog Devices ToF office frames
-(``../shared/realdata/adi_tof_office``: 512x512, modes 2 and 3; docs/real_cameras.md).
+(``data/realdata/adi_tof_office``: 512x512, modes 2 and 3; docs/real_cameras.md).
 
 One corrector process (the shipped weights, ``input_convention:=radial``: the ADI depth is radial
 range) receives each mode as a camera driver publishes it: 16UC1 depth in mm (0 = invalid; pixels

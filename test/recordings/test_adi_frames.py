@@ -2,7 +2,7 @@
 ``tof-mpd correct`` and the recording round trip.
 
 A small synthetic folder in the ADI layout tests the importer's rules everywhere; the real office
-frames (``../shared/realdata/adi_tof_office``, fixture ``adi_dir``) go the whole way: import,
+frames (``data/realdata/adi_tof_office``, fixture ``adi_dir``) go the whole way: import,
 correction with the shipped weights (on the paper's central 180x140 window of the 512x512 frame) and
 ``import-npz`` / ``export-npz`` without losing a bit.
 """

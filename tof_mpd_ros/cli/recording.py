@@ -79,7 +79,7 @@ def _register_import_adi(sub: Any) -> None:
         "import-adi", help="write one mode of an Analog Devices ToF folder as an .npz",
         description="Reads one camera mode of a folder of Analog Devices ToF frames "
                     "(depth_modeN.npy uint16 mm, amplitude_modeN.npy, confidence_modeN.npy; "
-                    "the layout of ../shared/realdata/adi_tof_office) and writes it as an "
+                    "the layout of data/realdata/adi_tof_office) and writes it as an "
                     "interchange .npz (or, for an OUT not ending in .npz, a new recording "
                     "directory) at full resolution. The depth is radial range and is kept as "
                     "range_mm; pixels of depth 0 or confidence above --max-confidence are NaN "
@@ -87,7 +87,7 @@ def _register_import_adi(sub: Any) -> None:
                     "75-degree centred pinhole (no calibration ships). See "
                     "docs/real_cameras.md. Refuses to overwrite unless --overwrite. Takes "
                     "about a second.",
-        epilog="example: tof-mpd recording import-adi ../shared/realdata/adi_tof_office "
+        epilog="example: tof-mpd recording import-adi data/realdata/adi_tof_office "
                "--mode 3 -o adi_mode3.npz")
     adi.add_argument("folder", help="folder of ADI frames")
     add_output(adi, ".npz (or recording directory) to create")

@@ -2,7 +2,7 @@
 creases. Two sources share one implementation (block reduction, RANSAC, plane reference,
 amplitude units):
 
-**Azure Kinect** (``/work/shared/realdata/azure_kinect_mug``). The depth image is z-depth in mm
+**Azure Kinect** (``data/realdata/azure_kinect_mug``). The depth image is z-depth in mm
 on a distorted (Brown–Conrady, rational) grid. It is resampled onto a pinhole grid (each pinhole
 pixel's ray is distorted to find its source pixel), converted to radial range, and block-reduced
 by ``downsample`` (median range, mean amplitude) so the simulator's interreflection stays
@@ -15,7 +15,7 @@ inferred albedo of the planes is ``PLANE_ALBEDO``; the Kinect's multi-frequency 
 never wraps in its range, so the frame is given the nominal 30 MHz (5 m ambiguity) of the
 simulated cell.
 
-**Analog Devices ToF module** (``/work/shared/realdata/adi_tof_office``: an office, 512 x 512,
+**Analog Devices ToF module** (``data/realdata/adi_tof_office``: an office, 512 x 512,
 modes 2 and 3). No intrinsics ship: a pinhole with the principal point at the centre and
 ``fov_deg`` (75°, the module's nominal field of view) is assumed. The depth is **radial range**,
 not z-depth: a flat back panel facing the camera reads 2074 mm near the centre and 2189 mm
@@ -66,7 +66,7 @@ PLANE_ALBEDO = 0.6
 #: cell's table at 0.3 m
 KINECT_LIGHT_POWER = DEFAULT_LIGHT_POWER * (2000.0 / CELL_DISTANCE_MM) ** 2
 
-#: ADI modes with frames in a folder like /work/shared/realdata/adi_tof_office
+#: ADI modes with frames in a folder like data/realdata/adi_tof_office
 ADI_FILES = ("depth_mode{}.npy", "amplitude_mode{}.npy", "confidence_mode{}.npy")
 #: the ADI module's nominal field of view (no intrinsics ship; principal point at the centre)
 ADI_FOV_DEG = 75.0

@@ -1,7 +1,7 @@
 """Frames of an Analog Devices ToF module (ADTF3175 / ADSD3100 family) saved as ``.npy`` per
 mode, as ToF frames for the NPZ interchange and the corrector.
 
-The layout is the one of ``../shared/realdata/adi_tof_office``: per camera mode N,
+The layout is the one of ``data/realdata/adi_tof_office``: per camera mode N,
 ``depth_modeN.npy`` (uint16 mm, 0 = invalid), ``amplitude_modeN.npy`` (uint16 active
 brightness) and ``confidence_modeN.npy`` (uint8, higher = less reliable). What the frames mean is
 established in :mod:`tof_mpd_ros.mismatch.realdata` (reading, masking and the measurements behind
