@@ -260,7 +260,8 @@ class StageTimer:
         # pipeline._Engine
         ("encoding", pipeline_module, "frame_planes", "seq"),
         ("encoding+F+G", pipeline_module._Engine, "networks", "container"),
-        ("encoding", pipeline_module, "encode_rows", "inner"),
+        ("encoding", pipeline_module, "encode_band", "inner"),
+        ("encoding", pipeline_module, "encode_band_int8", "inner"),
         ("F+G", networks_module.PatchNets, "first_layer", "inner"),
         ("F+G", networks_module.PatchNets, "heads", "inner"),
         ("NMS+hysteresis", edges_module, "edge_map_from_best", "seq"),

@@ -145,7 +145,7 @@ def test_sampled_pixels_of_a_stack_hold_the_same_numbers() -> None:
 
 
 def test_fast_path_kernels_hold_the_same_numbers() -> None:
-    from tof_mpd_ros.correction.encoding import encode_rows, frame_planes, plane_constants
+    from tof_mpd_ros.correction.encoding import encode_band, frame_planes, plane_constants
 
     for seed in (7, 8):
         r, a = _random_frame(seed)
@@ -166,19 +166,21 @@ def test_fast_path_kernels_hold_the_same_numbers() -> None:
         np.testing.assert_array_equal(bins_r[flat_ok], feats[:, 240:260].argmax(1).numpy()[flat_ok])
         np.testing.assert_array_equal(bins_a[flat_ok], feats[:, 260:280].argmax(1).numpy()[flat_ok])
         assert not bins_r[~flat_ok].any() and not bins_a[~flat_ok].any()
-        out = np.full((h * w, 240), 99.0, np.float32)
+        out = np.full((240, h * w), 99.0, np.float32)
         for y0 in range(0, h, 3):                    # bands of 3 rows, the last one shorter
             y1 = min(h, y0 + 3)
-            encode_rows(r_pad, la_pad, y0, y1, CFG.patch_size, consts, out[y0 * w:y1 * w])
-        np.testing.assert_array_equal(out, feats[:, :240].numpy())   # bit for bit
+            band = np.full((240, (y1 - y0) * w), 99.0, np.float32)
+            encode_band(r_pad, la_pad, y0, y1, CFG.patch_size, consts, band)
+            out[:, y0 * w:y1 * w] = band
+        np.testing.assert_array_equal(out.T, feats[:, :240].numpy())   # bit for bit
 
 
 def test_int8_rows_are_the_float_rows_quantised() -> None:
-    """encode_rows_int8 == rint(254 x) of the float encoding, element for element; equal
+    """encode_band_int8 == rint(254 x) of the float encoding, element for element; equal
     neighbours and invalid ones read exactly 0, a saturated difference +-127."""
     from tof_mpd_ros.correction.encoding import (
         INT8_SCALE,
-        encode_rows_int8,
+        encode_band_int8,
         padded_planes,
         plane_constants,
         quantize_rows,
@@ -192,11 +194,12 @@ def test_int8_rows_are_the_float_rows_quantised() -> None:
     planes = padded_planes(r[None], a[None], CFG)
     h, w = r.shape
     out = np.full((h * w, 240), 99, np.int8)
-    row = np.empty(240, np.float32)
     for y0 in range(0, h, 4):
         y1 = min(h, y0 + 4)
-        encode_rows_int8(planes.range_mm[0], planes.log_amplitude[0], y0, y1, CFG.patch_size,
-                         plane_constants(CFG), row, out[y0 * w:y1 * w])
+        band = np.full((240, (y1 - y0) * w), 99, np.int8)          # feature-major
+        encode_band_int8(planes.range_mm[0], planes.log_amplitude[0], y0, y1, CFG.patch_size,
+                         plane_constants(CFG), band)
+        out[y0 * w:y1 * w] = band.T
     want = np.rint(xf.astype(np.float32) * np.float32(INT8_SCALE))   # half to even
     np.testing.assert_array_equal(out.astype(np.float64), want)
     assert out.min() == -127 and out.max() == 127 and (out[xf == 0] == 0).all()

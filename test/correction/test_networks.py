@@ -86,7 +86,8 @@ def _run_patch_nets(nets, r, a, cfg):
     n = r.size
     frame = FrameBins(planes.bin_range[0], planes.bin_amplitude[0], planes.valid[0].ravel())
     out = HeadOutputs(np.zeros(n, np.float32), np.zeros(n, np.float32), np.zeros(n, np.int8))
-    nets.heads(nets.first_layer(feats), n, 0, frame, True, True, out, nets.scratch())
+    x = feats.t().contiguous()                       # feature-major, as encode_band writes
+    nets.heads(nets.first_layer(x), n, 0, frame, True, True, out, nets.scratch(n))
     return out
 
 
@@ -137,9 +138,9 @@ def test_int8_first_layer_is_the_exact_integer_product() -> None:
 
     f, g = RangeRecoveryNet(generator=_gen(11)), BoundaryNets(generator=_gen(12))
     nets = PatchNets(f, g, 11, 20, "int8")
-    x = (torch.rand(300, 240, generator=_gen(3)) - 0.5).contiguous()
-    x[0] = 0.5                                           # the extremes of the encoding
-    x[1] = -0.5
+    x = (torch.rand(240, 300, generator=_gen(3)) - 0.5).contiguous()   # feature-major
+    x[:, 0] = 0.5                                        # the extremes of the encoding
+    x[:, 1] = -0.5
     got = nets.first_layer(x)
     assert got.dtype == torch.int32 and got.shape == (240, 300)      # 200 rows + F's 40
     w = nets.weights.first.astype(np.float64)
@@ -149,19 +150,19 @@ def test_int8_first_layer_is_the_exact_integer_product() -> None:
     assert np.abs(low).max() <= 127
     wq = np.concatenate([high, low]).astype(np.int64)
     xq = np.rint(x.numpy().astype(np.float32) * np.float32(254.0)).astype(np.int64)
-    np.testing.assert_array_equal(got.numpy(), wq @ xq.T)
+    np.testing.assert_array_equal(got.numpy(), wq @ xq)
     np.testing.assert_allclose(nets.scale, np.concatenate([step, step[:40] / 254]) / 254,
                                rtol=1e-6)
     terms = got.numpy() * nets.scale[:, None].astype(np.float64)
     approx = terms[:200].copy()
     approx[:40] += terms[200:]
-    exact_x = w @ (xq.T / 254.0)                         # the same inputs, exact weights
+    exact_x = w @ (xq / 254.0)                           # the same inputs, exact weights
     err = np.abs(approx - exact_x)
     # each G term off by at most step/2 * |x| <= step / 4; F's by step / 1016
     assert (err[40:] <= 240 * step[40:, None] / 4).all()
     assert (err[:40] <= 240 * step[:40, None] / 1016).all()
     assert err[:40].mean() < err[40:].mean() / 50
-    exact = w @ x.numpy().astype(np.float64).T
+    exact = w @ x.numpy().astype(np.float64)
     assert np.abs(approx - exact).mean() < 0.01 * np.abs(exact).mean()
     with pytest.raises(InputError, match=r"within \[-0.5, 0.5\]"):
         nets.first_layer(x * 3)
@@ -211,4 +212,8 @@ def test_the_one_relayout_feeds_both_backends(monkeypatch) -> None:
     np.testing.assert_array_equal(w.g_w2[2], g.w2[2].detach().numpy().T)
     np.testing.assert_array_equal(w.first[:40], f.layers[0].weight.detach().numpy()[:, :240])
     np.testing.assert_array_equal(w.first[40 + 3 * 40:], g.first.weight.detach().numpy()[120:])
-    np.testing.assert_array_equal(w.table_amp, f.layers[0].weight.detach().numpy()[:, 260:])
+    # its one-hot columns become one table of the two lookups' sums: [j, b_R, b_A]
+    w_f = f.layers[0].weight.detach().numpy()
+    assert w.table_bins.shape == (40, 20, 20)
+    np.testing.assert_array_equal(w.table_bins[:, 3, 17], w_f[:, 240 + 3] + w_f[:, 260 + 17])
+    np.testing.assert_array_equal(w.table_bins[:, 19, 0], w_f[:, 259] + w_f[:, 260])

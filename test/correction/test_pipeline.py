@@ -228,8 +228,11 @@ def _edgy_frame(h: int, w: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return r, a
 
 
-def test_numba_backend_equals_torch_backend_and_threads_do_not_matter() -> None:
+def test_numba_backend_equals_torch_backend_and_threads_do_not_matter(monkeypatch) -> None:
+    from tof_mpd_ros.correction import pipeline
+
     h, w = 36, 44
+    monkeypatch.setattr(pipeline, "BAND_PIXELS", 1000)  # 22 rows: two bands, the last shorter
     model = _edgy_model(h, w)
     for seed in (0, 1):
         r, a = _edgy_frame(h, w, seed)

@@ -14,8 +14,9 @@ The modules are what training optimises (and what the evaluation's per-component
 
 Inference (``pipeline.correct``) has one path, :class:`PatchNets`, over one re-layout of the
 weights, :class:`FusedWeights`: one GEMM for the first layers of F and the four G heads over a
-band of pixel-major encodings, then everything after it, on the CPU in one compiled kernel
-(:func:`_heads_kernel`, cache-resident, no allocation), on other torch devices as torch ops.
+band of feature-major encodings, then everything after it: on the CPU compiled kernels
+(:func:`_heads_kernel`, :func:`_boundary_tail`; cache-resident, no allocation) around one
+batched GEMM of the heads' second layers, on other torch devices as torch ops.
 """
 
 from __future__ import annotations
@@ -209,8 +210,9 @@ class FusedWeights(NamedTuple):
         first: (rows, 2 M) first-layer weights of the ``[x_R x_A]`` inputs: F's, then head k's
             at rows ``nf + k h1 ..``: one GEMM gives all first-layer pre-activations.
         bias: (rows,) first-layer biases, same rows.
-        table_range, table_amp: (nf, n_bins) F's first-layer weights of the one-hot b_R / b_A
-            inputs: a column lookup per pixel instead of a product with a one-hot vector.
+        table_bins: (nf, n_bins, n_bins) F's first-layer weights of the one-hot b_R and b_A
+            inputs, summed: ``[j, b_R, b_A] = W[j, b_R] + W[j, b_A]``, one lookup per pixel
+            and row instead of products with two one-hot vectors (or two lookups).
         f_w: (L, widest out, widest in) F's remaining L layers ``(out, in)``, zero-padded.
         f_b: (L, widest out) their biases.
         f_dims: (L + 1,) int64 widths ``[nf, .., 1]``.
@@ -221,8 +223,7 @@ class FusedWeights(NamedTuple):
 
     first: np.ndarray
     bias: np.ndarray
-    table_range: np.ndarray
-    table_amp: np.ndarray
+    table_bins: np.ndarray
     f_w: np.ndarray
     f_b: np.ndarray
     f_dims: np.ndarray
@@ -257,8 +258,8 @@ def fuse_weights(range_net: RangeRecoveryNet, boundary_nets: BoundaryNets, patch
         first=np.ascontiguousarray(np.concatenate([w_f[:, :2 * m], _np32(g.first.weight)])),
         bias=_np32(torch.cat([range_net.layers[0].bias.detach().cpu(),
                               g.first.bias.detach().cpu()])),
-        table_range=np.ascontiguousarray(w_f[:, 2 * m:2 * m + n_bins]),
-        table_amp=np.ascontiguousarray(w_f[:, 2 * m + n_bins:]),
+        table_bins=np.ascontiguousarray(w_f[:, 2 * m:2 * m + n_bins, None]
+                                        + w_f[:, None, 2 * m + n_bins:]),
         f_w=f_w, f_b=f_b, f_dims=f_dims,
         g_w2=_np32(g.w2.transpose(1, 2)), g_b2=_np32(g.b2[:, 0]),
         g_w3=_np32(g.w3.transpose(1, 2)), g_b3=_np32(g.b3[:, 0]),
@@ -270,25 +271,26 @@ def fuse_weights(range_net: RangeRecoveryNet, boundary_nets: BoundaryNets, patch
 
 
 def _onednn_linear(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-    """``weight @ x.T`` through oneDNN's JIT GEMM (``mkldnn._linear_pointwise``).
+    """``weight @ x`` (x feature-major, (K, n)) through oneDNN's JIT GEMM
+    (``mkldnn._linear_pointwise``, which computes ``weight @ x.t().T``; the transposed view
+    is read in place).
 
     torch's CPU ``mm`` goes to MKL, which on AMD CPUs runs about half as fast (measured on the
     benchmark's Zen 5: 105-110 vs 225-240 GFLOP/s on one core for these shapes, float32, same
     accuracy). The op is the one torch.compile emits for linear layers on CPU.
     """
-    return torch.ops.mkldnn._linear_pointwise(weight, x, None, "none", [], "")
+    return torch.ops.mkldnn._linear_pointwise(weight, x.t(), None, "none", [], "")
 
 
 def _mkl_linear(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-    """``weight @ x.T`` with torch.mm (other devices; fallback when oneDNN is unavailable)."""
-    return torch.mm(weight, x.t())
+    """``weight @ x`` with torch.mm (other devices; fallback when oneDNN is unavailable)."""
+    return torch.mm(weight, x)
 
 
 def _int8_linear(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-    """``weight @ x.T`` of int8 operands, exact in int32 (``torch._int_mm``: oneDNN's int8 GEMM,
-    AVX512-VNNI / AMX-INT8 where the CPU has them). ``x.T`` is passed as a transposed view,
-    so the (rows, n) result comes channel-major with no copy of the band."""
-    return torch._int_mm(weight, x.t())
+    """``weight @ x`` of int8 operands (x feature-major), exact in int32 (``torch._int_mm``:
+    oneDNN's int8 GEMM, AVX512-VNNI / AMX-INT8 where the CPU has them)."""
+    return torch._int_mm(weight, x)
 
 
 @functools.cache
@@ -298,10 +300,9 @@ def int8_gemm_available() -> bool:
     try:
         gen = torch.Generator().manual_seed(0)
         w = torch.randint(-127, 128, (24, 64), generator=gen, dtype=torch.int8)
-        x = torch.randint(-127, 128, (40, 64), generator=gen, dtype=torch.int8)
+        x = torch.randint(-127, 128, (64, 40), generator=gen, dtype=torch.int8)
         got = _int8_linear(w, x)
-        return got.dtype == torch.int32 and bool(torch.equal(got.long(),
-                                                             w.long() @ x.long().t()))
+        return got.dtype == torch.int32 and bool(torch.equal(got.long(), w.long() @ x.long()))
     except (RuntimeError, AttributeError):   # op missing or unsupported in this build
         return False
 
@@ -313,7 +314,7 @@ def _pick_linear(dtype: torch.dtype) -> object:
             return _mkl_linear
         gen = torch.Generator().manual_seed(0)
         w = torch.rand(24, 40, generator=gen).to(dtype)
-        x = torch.rand(33, 40, generator=gen).to(dtype)
+        x = torch.rand(40, 33, generator=gen).to(dtype)
         got = _onednn_linear(w, x).float()
         want = _mkl_linear(w.float(), x.float())
         tol = 1e-4 if dtype == torch.float32 else 0.1
@@ -356,20 +357,25 @@ class HeadOutputs(NamedTuple):
 
 
 class Scratch(NamedTuple):
-    """Work arrays of one worker of :func:`_heads_kernel` (``chunk`` pixels wide, float32).
+    """Work arrays of one worker of :meth:`PatchNets.heads` (float32; ``chunk`` pixels wide,
+    or a whole band of up to ``band`` pixels).
 
     Attributes:
-        hidden: (rows, chunk) first-layer activations.
+        hidden: (nf, chunk) F's first-layer activations.
         f_even, f_odd: (widest F layer, chunk) ping-pong buffers of F's layers.
-        g_hidden: (h2, chunk) a head's second-layer activations.
-        g_logits: (2, chunk) a head's logits.
+        g_logits: (2, chunk) the heads' best logit difference and a head's.
+        joint: (chunk,) int32 the pixels' joint one-hot index ``b_R * n_bins + b_A``.
+        g_in: (heads * h1 * band,) the band's G first-layer activations, head-major.
+        g_out: (heads * h2 * band,) their second-layer pre-activations (one batched GEMM).
     """
 
     hidden: np.ndarray
     f_even: np.ndarray
     f_odd: np.ndarray
-    g_hidden: np.ndarray
     g_logits: np.ndarray
+    joint: np.ndarray
+    g_in: np.ndarray
+    g_out: np.ndarray
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -424,42 +430,57 @@ def _dense(w: np.ndarray, b: np.ndarray, n_out: int, n_in: int, src: np.ndarray,
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _first_activations(first: np.ndarray, scale: np.ndarray, c0: int, m: int, q0: int,
-                       frame: FrameBins, wts: FusedWeights,
-                       hidden: np.ndarray) -> None:  # pragma: no cover
-    """``hidden[j, :m] = relu(first[j, c0:c0 + m] * scale[j] + bias[j] (+ F's one-hot
-    lookups, j < nf))`` for pixels ``q0 .. q0 + m`` of the frame. ``first`` is float32 with
-    scale 1 (which leaves every value as it was), or the int8 GEMM's exact int32 sums (below
-    2**24 in magnitude, so exact in float32) with the weights' and the inputs' scales; then
-    F's rows j < nf also have a residual row ``rows + j`` (scale ``scale[rows + j]``)."""
+def _range_activations(first: np.ndarray, scale: np.ndarray, c0: int, m: int, q0: int,
+                       frame: FrameBins, wts: FusedWeights, hidden: np.ndarray,
+                       joint: np.ndarray) -> None:  # pragma: no cover
+    """F's first-layer activations ``hidden[j, :m] = relu(first[j, c0:c0 + m] * scale[j] +
+    bias[j] + the one-hot lookup)``, j < nf, for pixels ``q0 .. q0 + m`` of the frame.
+    ``first`` is float32 with scale 1 (which leaves every value as it was), or the int8 GEMM's
+    exact int32 sums (below 2**24 in magnitude, so exact in float32) with the weights' and
+    the inputs' scales; then each of F's rows also has a residual row ``rows + j`` (scale
+    ``scale[rows + j]``)."""
     nf = wts.f_dims[0]
     rows = wts.first.shape[0]
     residual = first.shape[0] > rows
     zero = np.float32(0.0)
-    for j in range(rows):
+    n_bins = wts.table_bins.shape[2]
+    # one flat index per pixel: a 2-D table lookup in the loops below would not vectorise
+    # (measured: 4x slower)
+    for px in range(m):
+        joint[px] = frame.bin_range[q0 + px] * n_bins + frame.bin_amplitude[q0 + px]
+    for j in range(nf):
         src = first[j, c0:c0 + m]
-        dst = hidden[j]
         bj = wts.bias[j]
         sj = scale[j]
-        if j < nf and residual:
-            tr = wts.table_range[j]
-            ta = wts.table_amp[j]
+        dst = hidden[j]
+        tb = wts.table_bins[j].reshape(n_bins * n_bins)      # a view: the table is C-ordered
+        if residual:
             low = first[rows + j, c0:c0 + m]
             sl = scale[rows + j]
             for px in range(m):
                 v = (np.float32(src[px]) * sj + np.float32(low[px]) * sl + bj
-                     + tr[frame.bin_range[q0 + px]] + ta[frame.bin_amplitude[q0 + px]])
-                dst[px] = max(v, zero)
-        elif j < nf:
-            tr = wts.table_range[j]
-            ta = wts.table_amp[j]
-            for px in range(m):
-                v = (np.float32(src[px]) * sj + bj + tr[frame.bin_range[q0 + px]]
-                     + ta[frame.bin_amplitude[q0 + px]])
+                     + tb[joint[px]])
                 dst[px] = max(v, zero)
         else:
             for px in range(m):
-                dst[px] = max(np.float32(src[px]) * sj + bj, zero)
+                dst[px] = max(np.float32(src[px]) * sj + bj + tb[joint[px]], zero)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _boundary_activations(first: np.ndarray, scale: np.ndarray, n: int, wts: FusedWeights,
+                          g_in: np.ndarray) -> None:  # pragma: no cover
+    """The G heads' first-layer activations of a band's ``n`` pixels, ``g_in[j - nf, :n] =
+    relu(first[j, :n] * scale[j] + bias[j])`` for the rows j >= nf (``first`` and its scales
+    as in :func:`_range_activations`): whole rows, the band fits in L2."""
+    nf = wts.f_dims[0]
+    zero = np.float32(0.0)
+    for j in range(nf, wts.first.shape[0]):
+        src = first[j]
+        dst = g_in[j - nf]
+        bj = wts.bias[j]
+        sj = scale[j]
+        for px in range(n):
+            dst[px] = max(np.float32(src[px]) * sj + bj, zero)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
@@ -481,57 +502,76 @@ def _range_chunk(wts: FusedWeights, m: int, q0: int, scratch: Scratch,
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _boundary_chunk(wts: FusedWeights, m: int, q0: int, valid: np.ndarray, scratch: Scratch,
-                    best: np.ndarray, group: np.ndarray) -> None:  # pragma: no cover
-    """The G heads after their first layer on ``scratch.hidden[nf:, :m]``; the maximum edge
-    probability and its head (first on ties; both 0 at invalid pixels) into ``best`` /
-    ``group`` at ``q0 .. q0 + m``."""
-    n_heads, h2, h1 = wts.g_w2.shape
-    nf = wts.f_dims[0]
-    for px in range(m):
-        best[q0 + px] = -1.0
-        group[q0 + px] = 0
-    for k in range(n_heads):
-        off = nf + k * h1
-        _dense(wts.g_w2[k], wts.g_b2[k], h2, h1, scratch.hidden[off:off + h1],
-               scratch.g_hidden, m, True)
-        _dense(wts.g_w3[k], wts.g_b3[k], 2, h2, scratch.g_hidden, scratch.g_logits, m, False)
-        l0 = scratch.g_logits[0]
-        l1 = scratch.g_logits[1]
-        for px in range(m):
-            # softmax(l)[1] = sigmoid(l1 - l0), in float64 then rounded, so the float32 value
-            # is the correctly rounded one.
-            e = math.exp(np.float64(l0[px]) - np.float64(l1[px]))
-            p = np.float32(1.0 / (1.0 + e))
-            if p > best[q0 + px]:
-                best[q0 + px] = p
-                group[q0 + px] = k
-    for px in range(m):
-        if not valid[q0 + px]:
-            best[q0 + px] = np.float32(0.0)
-            group[q0 + px] = 0
+def _heads_kernel(first: np.ndarray, scale: np.ndarray, n: int, start: int,
+                  frame: FrameBins, wts: FusedWeights, do_f: bool, do_g: bool, out: HeadOutputs,
+                  scratch: Scratch, g_in: np.ndarray) -> None:  # pragma: no cover
+    """Everything of F after the first-layer GEMM, and the G heads' first-layer activations,
+    for pixels ``start .. start + n`` of a frame.
+
+    ``first`` (rows, >= n) holds the first layers' ``W x`` (F's rows first, then each G
+    head's), row j in units of ``scale[j]``. The heads' activations go to ``g_in``
+    (heads * h1, n) for their second layer's GEMM; then per chunk of
+    ``scratch.hidden.shape[1]`` pixels (cache-resident) F's activations (scale, bias, one-hot
+    term, ReLU) and its remaining layers, into ``out.correction``.
+    """
+    if do_g:
+        _boundary_activations(first, scale, n, wts, g_in)
+    if do_f:
+        ch = scratch.hidden.shape[1]
+        for c0 in range(0, n, ch):
+            m = min(ch, n - c0)
+            q0 = start + c0
+            _range_activations(first, scale, c0, m, q0, frame, wts, scratch.hidden,
+                               scratch.joint)
+            _range_chunk(wts, m, q0, scratch, out.correction)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _heads_kernel(first: np.ndarray, scale: np.ndarray, n: int, start: int,
-                  frame: FrameBins, wts: FusedWeights, do_f: bool, do_g: bool, out: HeadOutputs,
-                  scratch: Scratch) -> None:  # pragma: no cover
-    """Everything after the first-layer GEMM for pixels ``start .. start + n`` of a frame.
+def _boundary_tail(g_out: np.ndarray, n: int, start: int, valid: np.ndarray,
+                   wts: FusedWeights, scratch: Scratch, best: np.ndarray,
+                   group: np.ndarray) -> None:  # pragma: no cover
+    """The G heads after their second layer's GEMM: ``g_out`` (heads, h2, n) holds
+    ``W2 h1`` of pixels ``start .. start + n``; the maximum edge probability over the heads and
+    its head (first on ties; both 0 at invalid pixels) into ``best`` / ``group``.
 
-    ``first`` (rows, >= n) holds the first layers' ``W x`` (F's rows first, then each G
-    head's), row j in units of ``scale[j]``; per chunk of ``scratch.hidden.shape[1]`` pixels
-    (cache-resident) this scales and adds the biases and F's one-hot terms, applies ReLU, runs
-    F's remaining layers and the G heads, and writes into ``out``.
+    A head's probability is softmax(l)[1] = sigmoid(l1 - l0), and the sigmoid is increasing, so
+    the head with the largest logit difference ``d = (w3[1] - w3[0]) . relu(g + b2) + b3[1] -
+    b3[0]`` is the most probable: one dot product per head and one exponential per pixel (in
+    float64 then rounded, so the float32 probability is the correctly rounded one of d).
     """
-    ch = scratch.hidden.shape[1]
+    n_heads, h2, _h1 = wts.g_w2.shape
+    ch = scratch.g_logits.shape[1]
+    best_d = scratch.g_logits[0]
+    d = scratch.g_logits[1]
+    zero = np.float32(0.0)
     for c0 in range(0, n, ch):
         m = min(ch, n - c0)
         q0 = start + c0
-        _first_activations(first, scale, c0, m, q0, frame, wts, scratch.hidden)
-        if do_f:
-            _range_chunk(wts, m, q0, scratch, out.correction)
-        if do_g:
-            _boundary_chunk(wts, m, q0, frame.valid, scratch, out.best, out.group)
+        for k in range(n_heads):
+            bd = wts.g_b3[k, 1] - wts.g_b3[k, 0]
+            for px in range(m):
+                d[px] = bd
+            for i in range(h2):
+                src = g_out[k, i, c0:c0 + m]
+                bi = wts.g_b2[k, i]
+                wi = wts.g_w3[k, 1, i] - wts.g_w3[k, 0, i]
+                for px in range(m):
+                    d[px] += wi * max(src[px] + bi, zero)
+            if k == 0:
+                for px in range(m):
+                    best_d[px] = d[px]
+                    group[q0 + px] = 0
+                continue
+            for px in range(m):
+                if d[px] > best_d[px]:
+                    best_d[px] = d[px]
+                    group[q0 + px] = k
+        for px in range(m):
+            if valid[q0 + px]:
+                best[q0 + px] = np.float32(1.0 / (1.0 + math.exp(-np.float64(best_d[px]))))
+            else:
+                best[q0 + px] = zero
+                group[q0 + px] = 0
 
 
 # ---------------------------------------------------------------------------------------------
@@ -541,7 +581,7 @@ def _heads_kernel(first: np.ndarray, scale: np.ndarray, n: int, start: int,
 class PatchNets:
     """The package's one inference path of F and the four G heads (``pipeline.correct``).
 
-    Per band of pixels, given their pixel-major ``[x_R x_A]`` (``encoding.encode_rows``):
+    Per band of pixels, given their feature-major ``[x_R x_A]`` (``encoding.encode_band``):
 
     1. :meth:`first_layer`: one GEMM of :attr:`FusedWeights.first` against the band gives all
        200 first-layer pre-activations (oneDNN on the CPU when available, see
@@ -550,8 +590,11 @@ class PatchNets:
        for a real reason (numba does not run on a GPU; torch's small-op overhead is several
        times the arithmetic on a CPU):
 
-       * ``"numba"`` (the CPU's): :func:`_heads_kernel`, vectorised over pixels in chunks
-         that stay in L1/L2, writing straight into the frame's outputs;
+       * ``"numba"`` (the CPU's): :func:`_heads_kernel` (F, and the heads' first-layer
+         activations), one batched GEMM of the heads' second layers over the band (torch's
+         CPU GEMM; a loop kernel ran this 80 % of the work at a quarter of the speed), then
+         :func:`_boundary_tail`; the kernels are vectorised over pixels in chunks that stay in
+         L1/L2 and write straight into the frame's outputs;
        * ``"torch"`` (every other device's): the same operations as torch ops on the device
          (the heads as batched GEMMs), results copied into the same outputs. It agrees with
          the numba backend up to float32 summation order (the tests bound it: the same edges,
@@ -567,7 +610,7 @@ class PatchNets:
     1e-3 mm" agreement with the oracle that the float32 default keeps. Opt-in only.
 
     ``precision="int8"`` (CPU, numba backend): the band comes as int8 rows
-    (``encoding.encode_rows_int8``, ``rint(254 x)``), each first-layer row's weights are
+    (``encoding.encode_band_int8``, ``rint(254 x)``), each first-layer row's weights are
     rounded to int8 on their own scale ``max |w_j| / 127`` (F's rows with a second, residual
     int8 row: :meth:`_setup_int8`), and the GEMM sums exactly in int32 (:func:`_int8_linear`);
     the kernel takes the sums back to float32 with the scales. The layers after the first stay
@@ -599,6 +642,7 @@ class PatchNets:
         self.weights = fuse_weights(range_net, boundary_nets, patch_size, n_bins)
         self.precision = precision
         self.rows, self.n_inputs = self.weights.first.shape
+        self.g_w2 = torch.from_numpy(self.weights.g_w2)      # (heads, h2, h1), shares memory
         self.chunk = int(chunk)
         # The kernel's per-row unit of the GEMM output (1: the GEMM is float).
         self.scale = np.ones(self.rows, np.float32)
@@ -640,24 +684,29 @@ class PatchNets:
         self.scale = (np.concatenate([step, step_low]) / INT8_SCALE).astype(np.float32)
         self.linear = _int8_linear
 
-    def scratch(self) -> Scratch | None:
-        """Work arrays of one worker for :meth:`heads` (allocate once, reuse every band)."""
+    def scratch(self, band: int) -> Scratch | None:
+        """Work arrays of one worker for :meth:`heads` on bands of up to ``band`` pixels
+        (allocate once, reuse every band)."""
         if self.backend != "numba":
             return None
         ch = self.chunk
-        widest = self.weights.f_w.shape[1]
-        return Scratch(np.empty((self.rows, ch), np.float32),
+        wts = self.weights
+        widest = wts.f_w.shape[1]
+        n_heads, h2, h1 = wts.g_w2.shape
+        return Scratch(np.empty((int(wts.f_dims[0]), ch), np.float32),
                        np.empty((widest, ch), np.float32), np.empty((widest, ch), np.float32),
-                       np.empty((self.weights.g_w2.shape[1], ch), np.float32),
-                       np.empty((2, ch), np.float32))
+                       np.empty((2, ch), np.float32), np.empty(ch, np.int32),
+                       np.empty(n_heads * h1 * band, np.float32),
+                       np.empty(n_heads * h2 * band, np.float32))
 
     def first_layer(self, x: torch.Tensor) -> torch.Tensor:
         """First-layer ``W x`` (no bias) of n pixels, row j in units of ``scale[j]``.
 
         Args:
-            x: (n, 2 M) pixel-major ``[x_R x_A]`` (contiguous rows, CPU): float32, or for
-                ``"int8"`` already quantised (``encoding.encode_rows_int8``); float32 rows
-                are then quantised here (``encoding.quantize_rows``).
+            x: (2 M, n) feature-major ``[x_R x_A]`` (contiguous, CPU;
+                ``encoding.encode_band``): float32, or for ``"int8"`` already quantised
+                (``encoding.encode_band_int8``); float32 inputs are then quantised here
+                (``encoding.quantize_rows``).
 
         Returns:
             (rows, n) tensor on the device (channel-major): float32, or int32 for ``"int8"``.
@@ -687,8 +736,19 @@ class PatchNets:
             scratch: from :meth:`scratch`.
         """
         if self.backend == "numba":
-            _heads_kernel(first.numpy(), self.scale, n, start, frame, self.weights, do_f, do_g,
-                          out, scratch)
+            wts = self.weights
+            n_heads, h2, h1 = wts.g_w2.shape
+            g_in = scratch.g_in[:n_heads * h1 * n].reshape(n_heads * h1, n)
+            _heads_kernel(first.numpy(), self.scale, n, start, frame, wts, do_f, do_g, out,
+                          scratch, g_in)
+            if do_g:
+                # the heads' second layer is 80 % of the arithmetic after the first: one
+                # batched GEMM per band (oneDNN/MKL) instead of the kernel's loops (measured,
+                # 320x240 on one thread: 4 against 16 ms per frame)
+                g_out = scratch.g_out[:n_heads * h2 * n].reshape(n_heads, h2, n)
+                torch.bmm(self.g_w2, torch.from_numpy(g_in).view(n_heads, h1, n),
+                          out=torch.from_numpy(g_out))
+                _boundary_tail(g_out, n, start, frame.valid, wts, scratch, out.best, out.group)
         else:
             _heads_torch(self.on_device, first, slice(start, start + n), frame, do_f, do_g,
                          out)
@@ -711,7 +771,7 @@ def _heads_torch(wts: FusedWeights, first: torch.Tensor, pixels: slice, frame: F
     bins_a = torch.from_numpy(frame.bin_amplitude[pixels]).to(dev).long()
     with torch.no_grad():
         h = first.add_(wts.bias[:, None])
-        h[:nf].add_(wts.table_range[:, bins_r]).add_(wts.table_amp[:, bins_a])
+        h[:nf].add_(wts.table_bins[:, bins_r, bins_a])
         h.relu_()
         if do_f:
             x = h[:nf]

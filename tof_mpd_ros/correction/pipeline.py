@@ -18,11 +18,11 @@ node's ``parallel_frames``) each take a free engine of the model's, built when n
 
 * compiled kernels fill NaN-padded range / log-amplitude planes and the one-hot bins into
   preallocated buffers (``encoding.frame_planes``);
-* on the CPU the frame is cut into bands of ~1440 pixels; ``threads`` worker threads (default:
+* on the CPU the frame is cut into bands of ~2880 pixels; ``threads`` worker threads (default:
   torch's thread count, capped by the usable CPUs) take bands in turn and, per band, encode the
-  pixels pixel-major into a cache-resident buffer (``encoding.encode_rows``), run one oneDNN
-  GEMM for the first layers of F and the four G heads, and one compiled kernel for the rest of
-  both networks (``networks.PatchNets``), which also reduces the four heads to the per-pixel
+  pixels feature-major into a cache-resident buffer (``encoding.encode_band``), run one oneDNN
+  GEMM for the first layers of F and the four G heads, and compiled kernels and one batched
+  GEMM for the rest of both networks (``networks.PatchNets``), which also reduces the four heads to the per-pixel
   maximum and its group. Workers run torch with 1 intra-op thread each (set for the call and
   restored), so the two levels of threading never stack; numba's kernels release the GIL. On
   another torch device the frame is one band, encoded on the CPU and run by ``PatchNets``'
@@ -57,8 +57,8 @@ from ..thread_pools import shared_pool
 from ..validation import check_array
 from .encoding import (
     EncodingConfig,
-    encode_rows,
-    encode_rows_int8,
+    encode_band,
+    encode_band_int8,
     frame_planes,
     plane_constants,
 )
@@ -72,9 +72,11 @@ from .networks import (
     RangeRecoveryNet,
 )
 
-# Pixels per band on the CPU: the band's encodings (1440 x 240 float32, 1.4 MB) and the
-# GEMM output (200 x 1440) stay in L2/L3 between the encoding, the GEMM and the small layers.
-BAND_PIXELS = 1440
+# Pixels per band on the CPU: the band's encodings (2880 x 240, 2.8 MB in float32, 0.7 MB in
+# int8) and the GEMM output (200 x 2880) stay in L2/L3 between the encoding, the GEMM and the
+# small layers. Measured on a 2-core Xeon (docs/performance.md, session 20): at 320x240, 2880
+# beat 1440 by 4-9 % and 5760 by 3-10 %; at 180x140 1440 to 5760 were within the noise.
+BAND_PIXELS = 2880
 
 
 @dataclass(frozen=True)
@@ -449,27 +451,23 @@ class _Engine:
         self.bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
         self.workers = max(1, min(workers if device.type == "cpu" else 1, len(self.bands)))
         band_dtype = torch.int8 if precision == "int8" else torch.float32
-        self.x = [torch.empty((rows * w, self.nets.n_inputs), dtype=band_dtype)
+        # flat: a band of n pixels is its first n_inputs * n values, (n_inputs, n) contiguous
+        self.x = [torch.empty(rows * w * self.nets.n_inputs, dtype=band_dtype)
                   for _ in range(self.workers)]
-        # int8 bands are encoded a pixel at a time through a float32 row (encode_rows_int8).
-        self.row = [np.empty(self.nets.n_inputs, np.float32) for _ in range(self.workers)]
-        self.scratch = [self.nets.scratch() for _ in range(self.workers)]
+        self.scratch = [self.nets.scratch(rows * w) for _ in range(self.workers)]
         self.lock = threading.Lock()
         self.busy = False           # held by a caller of _engine (under _ENGINES_LOCK)
 
     def _work(self, t: int, do_f: bool, do_g: bool) -> None:
         """Worker ``t``: bands t, t + workers, ... (encode, GEMM, small layers)."""
         w = self.shape[1]
-        x = self.x[t]
-        xn = x.numpy()
+        k = self.nets.n_inputs
         for y0, y1 in self.bands[t::self.workers]:
             n = (y1 - y0) * w
-            if xn.dtype == np.int8:
-                encode_rows_int8(self.r_pad, self.la_pad, y0, y1, self.patch_size, self.consts,
-                                 self.row[t], xn)
-            else:
-                encode_rows(self.r_pad, self.la_pad, y0, y1, self.patch_size, self.consts, xn)
-            first = self.nets.first_layer(x[:n])
+            x = self.x[t][:k * n].view(k, n)
+            encode = encode_band_int8 if x.dtype == torch.int8 else encode_band
+            encode(self.r_pad, self.la_pad, y0, y1, self.patch_size, self.consts, x.numpy())
+            first = self.nets.first_layer(x)
             self.nets.heads(first, n, y0 * w, self.frame, do_f, do_g, self.out,
                             self.scratch[t])
 
