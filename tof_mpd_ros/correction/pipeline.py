@@ -23,8 +23,9 @@ node's ``parallel_frames``) each take a free engine of the model's, built when n
   pixels feature-major into a cache-resident buffer (``encoding.encode_band``), run one oneDNN
   GEMM for the first layers of F and the four G heads, and compiled kernels and one batched
   GEMM for the rest of both networks (``networks.PatchNets``), which also reduces the four
-  heads to the per-pixel maximum and its group. Workers run torch with 1 intra-op thread each (set for the call and
-  restored), so the two levels of threading never stack; numba's kernels release the GIL. On
+  heads to the per-pixel maximum and its group. Workers run torch with 1 intra-op thread each
+  (set for the call and restored), so the two levels of threading never stack; numba's
+  kernels release the GIL. On
   another torch device the frame is one band, encoded on the CPU and run by ``PatchNets``'
   torch backend on the device;
 * NMS + hysteresis (``edges.edge_map_from_best``) and the geodesic filter (serial numba
