@@ -25,9 +25,8 @@ node's ``parallel_frames``) each take a free engine of the model's, built when n
   GEMM for the rest of both networks (``networks.PatchNets``), which also reduces the four
   heads to the per-pixel maximum and its group. Workers run torch with 1 intra-op thread each
   (set for the call and restored), so the two levels of threading never stack; numba's
-  kernels release the GIL. On
-  another torch device the frame is one band, encoded on the CPU and run by ``PatchNets``'
-  torch backend on the device;
+  kernels release the GIL. On another torch device the frame is one band, encoded on the CPU
+  and run by ``PatchNets``' torch backend on the device;
 * NMS + hysteresis (``edges.edge_map_from_best``) and the geodesic filter (serial numba
   kernels on ``numba.get_num_threads()`` Python threads). No OpenMP team runs anywhere in the
   CPU path, so no idle OpenMP thread spins against the working ones whatever wait policy
@@ -73,7 +72,7 @@ from .networks import (
     RangeRecoveryNet,
 )
 
-# Pixels per band on the CPU: the band's encodings (2880 x 240, 2.8 MB in float32, 0.7 MB in
+# Pixels per band on the CPU: the band's encodings (240 x 2880, 2.8 MB in float32, 0.7 MB in
 # int8) and the GEMM output (200 x 2880) stay in L2/L3 between the encoding, the GEMM and the
 # small layers. Measured on a 2-core Xeon (docs/performance.md, session 20): at 320x240, 2880
 # beat 1440 by 4-9 % and 5760 by 3-10 %; at 180x140 1440 to 5760 were within the noise.
