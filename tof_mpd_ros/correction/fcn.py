@@ -315,8 +315,8 @@ def _shift_rows(first: int, stride: int, n_chunks: int, weights: np.ndarray, r_p
     (chunk c holds rows c, c + n_chunks, ... of the B·H rows), given ``weights`` (B, k², H, W)
     float32, the exponentials of the logits less each pixel's largest. One neighbour at a
     time over a whole row, so every inner loop runs over contiguous pixels and vectorises
-    (the gate is a select, not a branch); the same sums as :func:`_pixel_shift`, whose order
-    per pixel it keeps."""
+    (the gate is a select, not a branch); per pixel the sums of :func:`_pixel_shift` in its
+    order, normalised once at the end (``num / den``)."""
     n_frames, n, h, w = weights.shape
     k = int(math.sqrt(n) + 0.5)
     pad = k // 2
