@@ -536,6 +536,7 @@ class _Engine:
         final = np.where(valid, filtered, nan).astype(np.float32)
         return final, edges, confidence, calib, range_f, valid
 
+
     def _recheck_boundaries(self, amplitude: np.ndarray, floor: float) -> None:
         """G's best probability and group again in float32 (the modules' own arithmetic) at
         the valid pixels whose reduced best is at least ``floor``, written over the heads'
