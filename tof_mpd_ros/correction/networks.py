@@ -607,8 +607,7 @@ class PatchNets:
     accumulation): measured on the benchmark's Zen 5 (AVX512-BF16), networks 18 instead of
     24 ms of CPU per 180x140 frame, but R_F off by up to 0.1 mm and ~0.5 % of the edge pixels
     flipped (so the final range differs by tens of mm next to them): it misses the "same edges,
-    1e-3 mm" agreement with the oracle that the float32 default keeps (the pipeline rechecks
-    G in float32 near its threshold, ``pipeline._Engine._recheck_boundaries``). Opt-in only.
+    1e-3 mm" agreement with the oracle that the float32 default keeps. Opt-in only.
 
     ``precision="int8"`` (CPU, numba backend): the band comes as int8 rows
     (``encoding.encode_band_int8``, ``rint(254 x)``), each first-layer row's weights are

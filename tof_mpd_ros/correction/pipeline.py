@@ -35,10 +35,7 @@ node's ``parallel_frames``) each take a free engine of the model's, built when n
 The result agrees with the straightforward oracle (``test/oracles/reference_pipeline.py``): the
 same edges and the corrected range within ~1e-4 mm (float32 summation order only; measured
 6.1e-5 mm, one float32 ulp at 256-512 mm). ``precision="bfloat16"`` and ``"int8"`` are opt-in
-and miss that agreement (see ``PatchNets``, docs/performance.md); they recheck G in float32
-where its reduced score is near the edge threshold (``_Engine._recheck_boundaries``), so their
-edges are float32's but for a few pixels and their final range is within 0.5 mm of float32's
-on 99.99 % of MD-Test's pixels.
+and miss that agreement (see ``PatchNets``, docs/performance.md).
 """
 
 from __future__ import annotations
@@ -62,7 +59,6 @@ from .encoding import (
     EncodingConfig,
     encode_band,
     encode_band_int8,
-    encode_pixels,
     frame_planes,
     plane_constants,
 )
@@ -81,14 +77,6 @@ from .networks import (
 # small layers. Measured on a 2-core Xeon (docs/performance.md, session 20): at 320x240, 2880
 # beat 1440 by 4-9 % and 5760 by 3-10 %; at 180x140 1440 to 5760 were within the noise.
 BAND_PIXELS = 2880
-# Reduced precisions: G is computed again in float32 wherever its reduced best edge probability
-# is at least the hysteresis' low threshold less this. The largest reduced-vs-float32 difference
-# of that probability on MD-Test (45 frames, shipped weights) was 0.053 in int8 and 0.025 in
-# bfloat16; 0.1 keeps twice that, so every pixel that can be (or sit beside) an edge pixel is
-# decided on float32 probabilities and the edge map is float32's (docs/performance.md).
-RECHECK_MARGIN = 0.1
-# rechecks of at least this many pixels use torch's threads (~1 ms of GEMM per 1000 pixels)
-RECHECK_PARALLEL_PIXELS = 2048
 
 
 @dataclass(frozen=True)
@@ -449,8 +437,6 @@ class _Engine:
         self.n_bins = enc.n_bins
         self.nets = PatchNets(model.range_net, model.boundary_nets, enc.patch_size,
                               enc.n_bins, precision, device=device, backend=backend)
-        # reduced precisions recheck G near its threshold in float32 (_recheck_boundaries)
-        self.recheck = (model.boundary_nets, enc) if precision != "float32" else None
         self.consts = plane_constants(enc)
         half = enc.patch_size // 2
         self.r_pad = np.full((h + 2 * half, w + 2 * half), np.nan, np.float32)
@@ -526,42 +512,12 @@ class _Engine:
             if not use_g:
                 return (range_f, np.zeros((h, w), bool), valid.astype(np.float32), calib,
                         range_f, valid)
-            if self.recheck is not None:
-                self._recheck_boundaries(np.ascontiguousarray(amplitude, np.float32),
-                                         geodesic.edge_low - RECHECK_MARGIN)
             best = self.out.best.reshape(h, w).copy()
             group = self.out.group.reshape(h, w).copy()
         confidence = np.where(valid, np.float32(1.0) - best, np.float32(0.0)).astype(np.float32)
         edges, filtered = _filter_from_best(geodesic, range_f, best, group)
         final = np.where(valid, filtered, nan).astype(np.float32)
         return final, edges, confidence, calib, range_f, valid
-
-
-    def _recheck_boundaries(self, amplitude: np.ndarray, floor: float) -> None:
-        """G's best probability and group again in float32 (the modules' own arithmetic) at
-        the valid pixels whose reduced best is at least ``floor``, written over the heads'
-        outputs. Why: the edge map decides at thresholds, and a pixel whose reduced score
-        crosses one flips an edge that the geodesic filter carries to its neighbours (final
-        range within 0.5 mm of float32 on 99.69 % of MD-Test's pixels in int8, 99.82 % in
-        bfloat16; with this recheck of ~10 % of the pixels, 99.993 % in both). Pixels below
-        ``floor`` stay below the low threshold in float32 too (see ``RECHECK_MARGIN``)."""
-        nets, enc = self.recheck
-        idx = np.flatnonzero(self.frame.valid & (self.out.best >= floor))
-        if idx.size == 0:
-            return
-        x = encode_pixels(self.r_pad[None], self.la_pad[None], amplitude[None], idx, enc,
-                          boundary_only=True)
-        device = next(nets.parameters()).device
-        # a few hundred pixels: one thread, no sleeping thread woken per op; many: all threads
-        saved = torch.get_num_threads()
-        torch.set_num_threads(1 if idx.size < RECHECK_PARALLEL_PIXELS else saved)
-        try:
-            with torch.no_grad():
-                p = nets.probabilities(torch.from_numpy(x).to(device)).float().cpu().numpy()
-        finally:
-            torch.set_num_threads(saved)
-        self.out.best[idx] = p.max(axis=1)
-        self.out.group[idx] = p.argmax(axis=1)       # the first head on ties, as the kernel
 
 
 def _single_threaded(fn: Any, *args: Any) -> None:
