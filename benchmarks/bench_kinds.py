@@ -24,11 +24,13 @@ says): the shares within 0.5 mm of the final range and of R_F, and the shares wi
 the scene's reference in float32 and in the reduced precision.
 
 Inputs it makes itself: the synthetic scene of ``bench_pipeline`` (planes, a box, a disc, 2 mm
-noise), with untrained models of both kinds on an identity calibration (timing does not depend
-on the weights' values). ``--weights-patch`` / ``--weights-fcn`` time trained files instead:
-at each size a file's central window of that size (``pipeline.central_window``, as the node
-and ``tof-mpd correct`` run it), or the file's own frame where it is smaller (said in the
-output); the synthetic frames are resized to it.
+noise). The patch kind is timed with the shipped weights (or ``--weights-patch``): its reduced
+precisions recompute G in float32 where an edge decision is unsure, and how many pixels that
+is depends on the weights (untrained heads are unsure everywhere, and the recheck is skipped).
+The fcn kind is timed untrained on an identity calibration unless ``--weights-fcn`` (its time
+does not depend on the weights' values). A weights file is run on its central window of each
+size (``pipeline.central_window``, as the node and ``tof-mpd correct`` run it), or on its own
+frame where it is smaller (said in the output); the synthetic frames are resized to it.
 
 The OpenMP threads wait passively (``OMP_WAIT_POLICY=PASSIVE`` unless set), as in the
 corrector node: spinning workers make a 2-thread forward pass many times slower when another
@@ -63,7 +65,7 @@ from bench_pipeline import _resize, _synthetic, cpu_peak, gemm_ceiling, machine
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.correction.fcn import N_INPUTS, FCNCorrectionModel, ResidualFCN
-from tof_mpd_ros.correction.pipeline import CorrectionModel, central_window, correct
+from tof_mpd_ros.correction.pipeline import central_window, correct
 
 PAPER_MS = 165.0
 TARGETS_MS = {"180x140": 15.0, "320x240": 33.0}
@@ -96,11 +98,11 @@ def conv_flops(net: ResidualFCN, h: int, w: int) -> int:
 
 def models(h: int, w: int, args: argparse.Namespace) -> dict[str, Any]:
     """One model of each kind at (h, w)."""
+    from tof_mpd_ros.correction.default_weights import default_weights_path
     from tof_mpd_ros.correction.weights import load_weights
 
     calib = IntrinsicCalibration.identity(h, w)
-    patch = (window_of(load_weights(args.weights_patch), h, w) if args.weights_patch
-             else CorrectionModel.untrained(calib, seed=0))
+    patch = window_of(load_weights(args.weights_patch or default_weights_path()), h, w)
     fcn = (window_of(load_weights(args.weights_fcn), h, w) if args.weights_fcn
            else FCNCorrectionModel.untrained(calib, seed=0))
     return {"patch": patch, "fcn": fcn}

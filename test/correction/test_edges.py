@@ -12,7 +12,10 @@ from tof_mpd_ros.correction.edges import (
     edge_map_from_responses,
     fill_missing,
     ground_truth_edges,
+    hysteresis,
+    non_maximum_suppression,
     orientation_group,
+    unsure_edge_decisions,
 )
 from tof_mpd_ros.errors import InputError
 
@@ -163,3 +166,57 @@ def test_staircase_thinning_keeps_8_connectivity():
         n_before, _ = cv2.connectedComponents(maxima.astype(np.uint8), connectivity=8)
         n_after, _ = cv2.connectedComponents(thinned.astype(np.uint8), connectivity=8)
         assert n_before == n_after
+
+
+def _heads(logits: np.ndarray) -> tuple[np.ndarray, ...]:
+    """(best, group, logit, margin) of (4, H, W) head logit differences, as the kernels give
+    them (the probability is the float32 rounding of the float64 sigmoid)."""
+    order = np.sort(logits, axis=0)
+    logit = order[-1].astype(np.float32)
+    best = (1.0 / (1.0 + np.exp(-logit.astype(np.float64)))).astype(np.float32)
+    return best, np.argmax(logits, axis=0), logit, (order[-1] - order[-2]).astype(np.float32)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_rechecking_the_unsure_pixels_restores_the_exact_nms_and_hysteresis(seed: int) -> None:
+    """Head logits moved by up to ``error`` (a reduced precision): once the pixels
+    :func:`unsure_edge_decisions` names carry their exact values again, non-maximum
+    suppression plus hysteresis give exactly the exact map, while without it they do not."""
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng(seed)
+    h, w, error, low, high = 60, 80, 0.3, 0.6, 0.95
+    # smooth ridges of edge evidence: many near-ties along them, as trained G heads give
+    field = gaussian_filter(rng.normal(size=(4, h, w)), (0, 2, 2)) * 40.0 - 2.0
+    exact = _heads(field.astype(np.float32))
+    noisy = _heads((field + rng.uniform(-error, error, field.shape)).astype(np.float32))
+    valid = rng.random((h, w)) > 0.02
+
+    def nms_hysteresis(best: np.ndarray, group: np.ndarray) -> np.ndarray:
+        best = np.where(valid, best, 0.0).astype(np.float32)
+        return hysteresis(non_maximum_suppression(best, group), best, low, high)
+
+    unsure = unsure_edge_decisions(noisy[2], noisy[3], noisy[1], valid, error, low=low,
+                                   high=high)
+    merged = [np.where(unsure, e, n) for e, n in zip(exact[:2], noisy[:2], strict=True)]
+    want = nms_hysteresis(*exact[:2])
+    assert want.sum() > 50                                        # edges to decide
+    np.testing.assert_array_equal(nms_hysteresis(*merged), want)
+    assert (nms_hysteresis(*noisy[:2]) != want).sum() > 0         # the recheck was needed
+    assert unsure.mean() < 0.5 and not (unsure & ~valid).any()
+
+
+def test_nothing_is_unsure_where_no_pixel_can_reach_the_high_threshold() -> None:
+    """Undecided heads everywhere (probability ~0.5, as untrained weights give) below a high
+    threshold no error can reach: no pixel can be an edge, so none needs rechecking; with an
+    error that reaches it, the whole undecided run is unsure."""
+    rng = np.random.default_rng(0)
+    logit = rng.normal(0.0, 0.05, (30, 40)).astype(np.float32)
+    margin = np.full_like(logit, 0.01)
+    group = np.zeros(logit.shape, np.int64)
+    valid = np.ones(logit.shape, bool)
+    # sigmoid(0.15 + 0.3) = 0.61 < 0.95: certain non-edges
+    assert not unsure_edge_decisions(logit, margin, group, valid, 0.3, low=0.3, high=0.95).any()
+    assert unsure_edge_decisions(logit, margin, group, valid, 3.0, low=0.3, high=0.95).all()
+    with pytest.raises(InputError):
+        unsure_edge_decisions(logit, margin, group, valid, -0.1)

@@ -85,7 +85,7 @@ def _run_patch_nets(nets, r, a, cfg):
     planes = padded_planes(r[None], a[None], cfg)
     n = r.size
     frame = FrameBins(planes.bin_range[0], planes.bin_amplitude[0], planes.valid[0].ravel())
-    out = HeadOutputs(np.zeros(n, np.float32), np.zeros(n, np.float32), np.zeros(n, np.int8))
+    out = HeadOutputs.zeros(n)
     x = feats.t().contiguous()                       # feature-major, as encode_band writes
     nets.heads(nets.first_layer(x), n, 0, frame, True, True, out, nets.scratch(n))
     return out

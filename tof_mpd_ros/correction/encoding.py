@@ -385,7 +385,7 @@ def padded_planes(calibrated: np.ndarray, amplitude: np.ndarray,
 
 def encode_pixels(range_planes: np.ndarray, log_amp_planes: np.ndarray, amplitude: np.ndarray,
                   flat_index: np.ndarray, config: EncodingConfig, *,
-                  boundary_only: bool = False) -> np.ndarray:
+                  boundary_only: bool = False, out: np.ndarray | None = None) -> np.ndarray:
     """Encode chosen pixels of a stack of frames from their padded planes.
 
     Args:
@@ -395,12 +395,19 @@ def encode_pixels(range_planes: np.ndarray, log_amp_planes: np.ndarray, amplitud
         flat_index: (N,) int flat indices into (B, H, W).
         config: encoding constants.
         boundary_only: only the ``[x_R x_A]`` columns (N, 2 M).
+        out: optional C-contiguous float32 array of at least N rows of that width, written in
+            its first N rows (the rest untouched) and returned whole.
 
     Returns:
         (N, 2 M + 2 n_bins) float32 features (or (N, 2 M)); rows of invalid centres are zero.
     """
     width = config.n_boundary_features if boundary_only else config.n_features
-    out = np.empty((len(flat_index), width), np.float32)
+    if out is None:
+        out = np.empty((len(flat_index), width), np.float32)
+    elif (out.dtype != np.float32 or out.ndim != 2 or out.shape[1] != width
+          or out.shape[0] < len(flat_index) or not out.flags.c_contiguous):
+        raise InputError(f"out must be C-contiguous float32 (>= {len(flat_index)}, {width}), "
+                         f"got {out.dtype} {out.shape}")
     _encode_at(range_planes, log_amp_planes, amplitude, np.asarray(flat_index, np.int64),
                config.patch_size, plane_constants(config), config.n_bins, out)
     return out

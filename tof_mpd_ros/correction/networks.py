@@ -349,11 +349,24 @@ class HeadOutputs(NamedTuple):
         correction: (H*W,) float32 F(p) in mm.
         best: (H*W,) float32 maximum edge probability over the heads (0 at invalid pixels).
         group: (H*W,) int8 its head, first on ties (0 at invalid pixels).
+        logit: (H*W,) float32 that head's logit difference ``l1 - l0`` (``best`` is its
+            sigmoid; -inf at invalid pixels).
+        margin: (H*W,) float32 how far the runner-up head's logit difference is below it
+            (>= 0; +inf at invalid pixels): the pipeline reads how sure a reduced precision's
+            group is from it.
     """
 
     correction: np.ndarray
     best: np.ndarray
     group: np.ndarray
+    logit: np.ndarray
+    margin: np.ndarray
+
+    @classmethod
+    def zeros(cls, n: int) -> HeadOutputs:
+        """Outputs of n pixels."""
+        return cls(np.zeros(n, np.float32), np.zeros(n, np.float32), np.zeros(n, np.int8),
+                   np.zeros(n, np.float32), np.zeros(n, np.float32))
 
 
 class Scratch(NamedTuple):
@@ -363,7 +376,7 @@ class Scratch(NamedTuple):
     Attributes:
         hidden: (nf, chunk) F's first-layer activations.
         f_even, f_odd: (widest F layer, chunk) ping-pong buffers of F's layers.
-        g_logits: (2, chunk) the heads' best logit difference and a head's.
+        g_logits: (3, chunk) the heads' best logit difference, a head's, the runner-up's.
         joint: (chunk,) int32 the pixels' joint one-hot index ``b_R * n_bins + b_A``.
         g_in: (heads * h1 * band,) the band's G first-layer activations, head-major.
         g_out: (heads * h2 * band,) their second-layer pre-activations (one batched GEMM).
@@ -528,11 +541,11 @@ def _heads_kernel(first: np.ndarray, scale: np.ndarray, n: int, start: int,
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _boundary_tail(g_out: np.ndarray, n: int, start: int, valid: np.ndarray,
-                   wts: FusedWeights, scratch: Scratch, best: np.ndarray,
-                   group: np.ndarray) -> None:  # pragma: no cover
+                   wts: FusedWeights, scratch: Scratch, out: HeadOutputs
+                   ) -> None:  # pragma: no cover
     """The G heads after their second layer's GEMM: ``g_out`` (heads, h2, n) holds
-    ``W2 h1`` of pixels ``start .. start + n``; the maximum edge probability over the heads and
-    its head (first on ties; both 0 at invalid pixels) into ``best`` / ``group``.
+    ``W2 h1`` of pixels ``start .. start + n``; the maximum edge probability over the heads, its
+    head (first on ties), its logit difference and its margin over the runner-up into ``out``.
 
     A head's probability is softmax(l)[1] = sigmoid(l1 - l0), and the sigmoid is increasing, so
     the head with the largest logit difference ``d = (w3[1] - w3[0]) . relu(g + b2) + b3[1] -
@@ -543,6 +556,7 @@ def _boundary_tail(g_out: np.ndarray, n: int, start: int, valid: np.ndarray,
     ch = scratch.g_logits.shape[1]
     best_d = scratch.g_logits[0]
     d = scratch.g_logits[1]
+    second_d = scratch.g_logits[2]
     zero = np.float32(0.0)
     for c0 in range(0, n, ch):
         m = min(ch, n - c0)
@@ -560,18 +574,27 @@ def _boundary_tail(g_out: np.ndarray, n: int, start: int, valid: np.ndarray,
             if k == 0:
                 for px in range(m):
                     best_d[px] = d[px]
-                    group[q0 + px] = 0
+                    second_d[px] = -np.inf
+                    out.group[q0 + px] = 0
                 continue
             for px in range(m):
                 if d[px] > best_d[px]:
+                    second_d[px] = best_d[px]
                     best_d[px] = d[px]
-                    group[q0 + px] = k
+                    out.group[q0 + px] = k
+                else:
+                    second_d[px] = max(second_d[px], d[px])
         for px in range(m):
-            if valid[q0 + px]:
-                best[q0 + px] = np.float32(1.0 / (1.0 + math.exp(-np.float64(best_d[px]))))
+            q = q0 + px
+            if valid[q]:
+                out.best[q] = np.float32(1.0 / (1.0 + math.exp(-np.float64(best_d[px]))))
+                out.logit[q] = best_d[px]
+                out.margin[q] = best_d[px] - second_d[px]
             else:
-                best[q0 + px] = zero
-                group[q0 + px] = 0
+                out.best[q] = zero
+                out.group[q] = 0
+                out.logit[q] = -np.inf
+                out.margin[q] = np.inf
 
 
 # ---------------------------------------------------------------------------------------------
@@ -607,7 +630,9 @@ class PatchNets:
     accumulation): measured on the benchmark's Zen 5 (AVX512-BF16), networks 18 instead of
     24 ms of CPU per 180x140 frame, but R_F off by up to 0.1 mm and ~0.5 % of the edge pixels
     flipped (so the final range differs by tens of mm next to them): it misses the "same edges,
-    1e-3 mm" agreement with the oracle that the float32 default keeps. Opt-in only.
+    1e-3 mm" agreement with the oracle that the float32 default keeps. Opt-in only. The
+    pipeline recomputes G in float32 where the rounding could flip an edge decision (the
+    ``logit`` and ``margin`` outputs say where; ``pipeline._Engine._recheck_unsure``).
 
     ``precision="int8"`` (CPU, numba backend): the band comes as int8 rows
     (``encoding.encode_band_int8``, ``rint(254 x)``), each first-layer row's weights are
@@ -695,7 +720,7 @@ class PatchNets:
         n_heads, h2, h1 = wts.g_w2.shape
         return Scratch(np.empty((int(wts.f_dims[0]), ch), np.float32),
                        np.empty((widest, ch), np.float32), np.empty((widest, ch), np.float32),
-                       np.empty((2, ch), np.float32), np.empty(ch, np.int32),
+                       np.empty((3, ch), np.float32), np.empty(ch, np.int32),
                        np.empty(n_heads * h1 * band, np.float32),
                        np.empty(n_heads * h2 * band, np.float32))
 
@@ -748,7 +773,7 @@ class PatchNets:
                 g_out = scratch.g_out[:n_heads * h2 * n].reshape(n_heads, h2, n)
                 torch.bmm(self.g_w2, torch.from_numpy(g_in).view(n_heads, h1, n),
                           out=torch.from_numpy(g_out))
-                _boundary_tail(g_out, n, start, frame.valid, wts, scratch, out.best, out.group)
+                _boundary_tail(g_out, n, start, frame.valid, wts, scratch, out)
         else:
             _heads_torch(self.on_device, first, slice(start, start + n), frame, do_f, do_g,
                          out)
@@ -786,9 +811,15 @@ def _heads_torch(wts: FusedWeights, first: torch.Tensor, pixels: slice, frame: F
             n_heads, _h2, h1 = wts.g_w2.shape
             hg = h[nf:].reshape(n_heads, h1, -1)
             hg = torch.baddbmm(wts.g_b2[:, :, None], wts.g_w2, hg).relu_()
-            logits = torch.baddbmm(wts.g_b3[:, :, None], wts.g_w3, hg).double()
-            probs = (1.0 / (1.0 + torch.exp(logits[:, 0] - logits[:, 1]))).float()
-            best, group = probs.max(dim=0)
+            logits = torch.baddbmm(wts.g_b3[:, :, None], wts.g_w3, hg)
+            diffs = logits[:, 1] - logits[:, 0]                        # (heads, n)
+            top = diffs.topk(2, dim=0)
+            best = (1.0 / (1.0 + torch.exp(-top.values[0].double()))).float()
             valid = torch.from_numpy(frame.valid[pixels]).to(dev)
             out.best[pixels] = torch.where(valid, best, 0.0).cpu().numpy()
+            # the first maximum on ties, as the kernel (topk's order on ties is unspecified)
+            group = diffs.argmax(dim=0)
             out.group[pixels] = torch.where(valid, group, 0).to(torch.int8).cpu().numpy()
+            out.logit[pixels] = torch.where(valid, top.values[0], -torch.inf).cpu().numpy()
+            margin = top.values[0] - top.values[1]
+            out.margin[pixels] = torch.where(valid, margin, torch.inf).cpu().numpy()

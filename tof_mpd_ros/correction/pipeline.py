@@ -34,8 +34,11 @@ node's ``parallel_frames``) each take a free engine of the model's, built when n
 
 The result agrees with the straightforward oracle (``test/oracles/reference_pipeline.py``): the
 same edges and the corrected range within ~1e-4 mm (float32 summation order only; measured
-6.1e-5 mm, one float32 ulp at 256-512 mm). ``precision="bfloat16"`` and ``"int8"`` are opt-in
-and miss that agreement (see ``PatchNets``, docs/performance.md).
+6.1e-5 mm, one float32 ulp at 256-512 mm). ``precision="bfloat16"`` and ``"int8"`` are opt-in;
+they recompute G in float32 at the pixels whose edge decision their rounding could change
+(``edges.unsure_edge_decisions``, ``_Engine._recheck_unsure``), so their edges are float32's
+but at a few pixels and their final range is within 0.5 mm of float32's on 99.99 % of
+MD-Test's pixels (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -59,6 +62,7 @@ from .encoding import (
     EncodingConfig,
     encode_band,
     encode_band_int8,
+    encode_pixels,
     frame_planes,
     plane_constants,
 )
@@ -77,6 +81,19 @@ from .networks import (
 # small layers. Measured on a 2-core Xeon (docs/performance.md, session 20): at 320x240, 2880
 # beat 1440 by 4-9 % and 5760 by 3-10 %; at 180x140 1440 to 5760 were within the noise.
 BAND_PIXELS = 2880
+# Reduced precisions: the largest error assumed of G's logit differences against float32, for
+# the pixels rechecked in float32 (``edges.unsure_edge_decisions``). Measured on MD-Test (45
+# frames, shipped weights, docs/performance.md): at most 0.32 in int8 and 0.10 in bfloat16
+# (99.99th percentiles 0.20 and 0.055); these are about twice that.
+RECHECK_LOGIT_ERROR = {"bfloat16": 0.2, "int8": 0.6}
+# A frame with more unsure pixels than this share of its valid ones keeps the reduced edges:
+# G is undecided nearly everywhere (untrained weights score ~0.5 at every pixel), and checking
+# it all would be slower than float32 (docs/performance.md). Trained weights on MD-Test: a
+# median of 8.6 % (int8) and 4.3 % (bfloat16), at most 15 %.
+RECHECK_MAX_SHARE = 0.25
+# Pixels per float32 recheck GEMM: one fixed shape, so oneDNN builds its kernel once (a new
+# pixel count per frame re-created the primitive: ~4 ms per frame).
+RECHECK_CHUNK = 1024
 
 
 @dataclass(frozen=True)
@@ -437,6 +454,22 @@ class _Engine:
         self.n_bins = enc.n_bins
         self.nets = PatchNets(model.range_net, model.boundary_nets, enc.patch_size,
                               enc.n_bins, precision, device=device, backend=backend)
+        # a reduced precision rechecks G in float32 where an edge decision is unsure
+        self.float32_nets = None if precision == "float32" else PatchNets(
+            model.range_net, model.boundary_nets, enc.patch_size, enc.n_bins, "float32",
+            device=device, backend=backend)
+        self.recheck_error = RECHECK_LOGIT_ERROR.get(precision, 0.0)
+        self.encoding = enc
+        if self.float32_nets is not None:
+            self.recheck_x = np.zeros((RECHECK_CHUNK, enc.n_boundary_features), np.float32)
+            self.recheck_out = HeadOutputs.zeros(RECHECK_CHUNK)
+            self.recheck_scratch = self.float32_nets.scratch(RECHECK_CHUNK)
+            # F is not run on rechecked pixels, so their bins are never read
+            self.recheck_frame = FrameBins(np.zeros(RECHECK_CHUNK, np.int32),
+                                           np.zeros(RECHECK_CHUNK, np.int32),
+                                           np.ones(RECHECK_CHUNK, bool))
+        self.rechecked = 0          # pixels rechecked in float32 in the last frame
+        self.recheck_skipped = 0    # frames whose recheck RECHECK_MAX_SHARE skipped
         self.consts = plane_constants(enc)
         half = enc.patch_size // 2
         self.r_pad = np.full((h + 2 * half, w + 2 * half), np.nan, np.float32)
@@ -444,8 +477,7 @@ class _Engine:
         self.valid = np.zeros((h, w), bool)
         self.frame = FrameBins(np.zeros(h * w, np.int32), np.zeros(h * w, np.int32),
                                self.valid.reshape(-1))
-        self.out = HeadOutputs(np.zeros(h * w, np.float32), np.zeros(h * w, np.float32),
-                               np.zeros(h * w, np.int8))
+        self.out = HeadOutputs.zeros(h * w)
         # A device takes the frame as one band (one transfer, one launch per layer).
         rows = max(1, BAND_PIXELS // w) if device.type == "cpu" else h
         self.bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
@@ -512,12 +544,56 @@ class _Engine:
             if not use_g:
                 return (range_f, np.zeros((h, w), bool), valid.astype(np.float32), calib,
                         range_f, valid)
+            if self.float32_nets is not None:
+                self._recheck_unsure(np.ascontiguousarray(amplitude, np.float32), geodesic)
             best = self.out.best.reshape(h, w).copy()
             group = self.out.group.reshape(h, w).copy()
         confidence = np.where(valid, np.float32(1.0) - best, np.float32(0.0)).astype(np.float32)
         edges, filtered = _filter_from_best(geodesic, range_f, best, group)
         final = np.where(valid, filtered, nan).astype(np.float32)
         return final, edges, confidence, calib, range_f, valid
+
+
+    def _recheck_unsure(self, amplitude: np.ndarray, params: GeodesicParams) -> None:
+        """G again in float32 at the pixels whose edge decision a reduced precision's error
+        could change (``edges.unsure_edge_decisions``), written over the heads' outputs.
+
+        Why: the edge map decides at thresholds and local maxima; a pixel whose reduced score
+        crosses one flips an edge, and the geodesic filter carries the flip to its neighbours
+        (final range within 0.5 mm of float32 on 99.69 % of MD-Test's pixels in int8, 99.82 %
+        in bfloat16, against the issue's 99.9 %; 99.993 % with it). The unsure pixels are a few
+        per cent of an edge-rich frame and none where nothing can reach the high threshold;
+        past ``RECHECK_MAX_SHARE`` the frame keeps its reduced edges.
+        """
+        from .edges import unsure_edge_decisions  # pulls in OpenCV/scipy, as _filter_from_best
+        h, w = self.shape
+        out = self.out
+        unsure = unsure_edge_decisions(
+            out.logit.reshape(h, w), out.margin.reshape(h, w), out.group.reshape(h, w),
+            self.frame.valid.reshape(h, w), self.recheck_error, low=params.edge_low,
+            high=params.edge_high)
+        idx = np.flatnonzero(unsure)
+        self.rechecked = 0
+        if idx.size > RECHECK_MAX_SHARE * np.count_nonzero(self.frame.valid):
+            self.recheck_skipped += 1
+            return
+        self.rechecked = idx.size
+        if idx.size == 0:
+            return
+        nets = self.float32_nets
+        part = self.recheck_out
+        frame = self.recheck_frame
+        # pixel-major rows, passed as the transposed view the GEMM reads in place
+        x = torch.from_numpy(self.recheck_x).t()
+        for i0 in range(0, idx.size, RECHECK_CHUNK):
+            chunk = idx[i0:i0 + RECHECK_CHUNK]
+            n = chunk.size          # rows past n hold an earlier chunk's pixels: not read back
+            encode_pixels(self.r_pad[None], self.la_pad[None], amplitude[None], chunk,
+                          self.encoding, boundary_only=True, out=self.recheck_x)
+            nets.heads(nets.first_layer(x), RECHECK_CHUNK, 0, frame, False, True, part,
+                       self.recheck_scratch)
+            out.best[chunk], out.group[chunk] = part.best[:n], part.group[:n]
+            out.logit[chunk], out.margin[chunk] = part.logit[:n], part.margin[:n]
 
 
 def _single_threaded(fn: Any, *args: Any) -> None:
