@@ -142,6 +142,16 @@ def test_sampled_pixels_of_a_stack_hold_the_same_numbers() -> None:
         got = encode_pixels(planes.range_mm, planes.log_amplitude, planes.amplitude, pick, CFG,
                             boundary_only=boundary_only)
         np.testing.assert_array_equal(got, feats.numpy()[pick, :got.shape[1]])
+    # into a caller's larger buffer (the pipeline's recheck): its first rows, the rest kept
+    buf = np.full((300, CFG.n_boundary_features), 7.0, np.float32)
+    got = encode_pixels(planes.range_mm, planes.log_amplitude, planes.amplitude, pick, CFG,
+                        boundary_only=True, out=buf)
+    assert got is buf
+    np.testing.assert_array_equal(buf[:200], feats.numpy()[pick, :CFG.n_boundary_features])
+    assert (buf[200:] == 7.0).all()
+    with pytest.raises(InputError, match="out must be"):
+        encode_pixels(planes.range_mm, planes.log_amplitude, planes.amplitude, pick, CFG,
+                      boundary_only=True, out=buf[:100])
 
 
 def test_fast_path_kernels_hold_the_same_numbers() -> None:

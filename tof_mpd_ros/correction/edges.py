@@ -24,6 +24,8 @@ compares against the stock detector.
 
 from __future__ import annotations
 
+import math
+
 import cv2
 import numba
 import numpy as np
@@ -315,38 +317,67 @@ def unsure_edge_decisions(logit: np.ndarray, margin: np.ndarray, group: np.ndarr
     _check_thresholds(low, high)
     if not error >= 0:
         raise InputError(f"error must be >= 0, got {error}")
-    valid = np.asarray(valid, bool)
-    x = np.where(valid, np.asarray(logit, np.float64), -np.inf)
-    lo = _rounded_sigmoid(x - error)
-    hi = _rounded_sigmoid(x + error)
-    can_be_weak = hi >= np.float32(low)
-    n, labels = cv2.connectedComponents(can_be_weak.astype(np.uint8), connectivity=8)
+    logit = np.ascontiguousarray(logit, np.float32)
+    valid = np.ascontiguousarray(valid, bool)
+    can_be_weak = np.zeros(logit.shape, np.uint8)
+    can_be_strong = np.zeros(logit.shape, bool)
+    # the sigmoid is evaluated only above (a little below) the low threshold's logit
+    near = math.log(low / (1.0 - low)) - 0.01 if 0.0 < low < 1.0 else -math.inf
+    _reachable(logit, valid, float(error), near, np.float32(low), np.float32(high),
+               can_be_weak, can_be_strong)
+    if not can_be_strong.any():                    # no edge can start anywhere
+        return np.zeros(logit.shape, bool)
+    n, labels = cv2.connectedComponents(can_be_weak, connectivity=8)
     seeded = np.zeros(n, bool)
-    seeded[labels[can_be_weak & (hi >= np.float32(high))]] = True
+    seeded[labels[can_be_strong]] = True
     seeded[0] = False
-    unsure = np.zeros(valid.shape, bool)
-    _unsure_kernel(seeded[labels], lo, hi, np.asarray(margin, np.float32),
-                   np.asarray(group, np.int64), np.float32(low), np.float32(high),
-                   np.float32(2.0 * error), GROUP_NORMALS, unsure)
-    return unsure & valid
+    unsure = np.zeros(logit.shape, bool)
+    lo = np.empty(logit.shape, np.float32)
+    hi = np.empty(logit.shape, np.float32)
+    _unsure_kernel(seeded[labels], logit, valid, np.ascontiguousarray(margin, np.float32),
+                   np.ascontiguousarray(group, np.int64), float(error), np.float32(low),
+                   np.float32(high), GROUP_NORMALS, np.zeros(logit.shape, bool), lo, hi,
+                   unsure)
+    return unsure
 
 
-def _rounded_sigmoid(x: np.ndarray) -> np.ndarray:
+@numba.njit(cache=True, nogil=True, inline="always")
+def _rounded_sigmoid(x: float) -> np.float32:  # pragma: no cover
     """float32 of sigmoid(x) evaluated in float64, as the network kernels round it."""
-    with np.errstate(over="ignore"):
-        return (1.0 / (1.0 + np.exp(-x))).astype(np.float32)
+    return np.float32(1.0 / (1.0 + math.exp(-x)))
 
 
 @numba.njit(cache=True, nogil=True)
-def _unsure_kernel(candidate: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin: np.ndarray,
-                   group: np.ndarray, low: np.float32, high: np.float32, group_error: np.float32,
-                   normals: np.ndarray, unsure: np.ndarray) -> None:  # pragma: no cover
-    """:func:`unsure_edge_decisions`' rules at the candidate pixels, marking ``unsure``."""
-    h, w = lo.shape
+def _reachable(logit: np.ndarray, valid: np.ndarray, error: float, near: float,
+               low: np.float32, high: np.float32, can_be_weak: np.ndarray,
+               can_be_strong: np.ndarray) -> None:  # pragma: no cover
+    """Valid pixels whose float32 probability can reach ``low`` / ``high``; the sigmoid is
+    evaluated only where the logit plus ``error`` exceeds ``near`` (most pixels are far
+    below the threshold)."""
+    h, w = logit.shape
+    for y in range(h):
+        for x in range(w):
+            top = logit[y, x] + error
+            if valid[y, x] and top > near:
+                p = _rounded_sigmoid(top)
+                can_be_weak[y, x] = p >= low
+                can_be_strong[y, x] = p >= high
+
+
+@numba.njit(cache=True, nogil=True)
+def _unsure_kernel(candidate: np.ndarray, logit: np.ndarray, valid: np.ndarray,
+                   margin: np.ndarray, group: np.ndarray, error: float, low: np.float32,
+                   high: np.float32, normals: np.ndarray, known: np.ndarray, lo: np.ndarray,
+                   hi: np.ndarray, unsure: np.ndarray) -> None:  # pragma: no cover
+    """:func:`unsure_edge_decisions`' rules at the candidate pixels, marking ``unsure``; the
+    probability interval of a pixel is computed the first time it is needed (``known``)."""
+    h, w = logit.shape
+    group_error = 2.0 * error
     for y in range(h):
         for x in range(w):
             if not candidate[y, x]:
                 continue
+            _interval(logit, valid, error, y, x, known, lo, hi)
             a, b = lo[y, x], hi[y, x]
             if (a < low <= b) or (a < high <= b):
                 unsure[y, x] = True
@@ -360,10 +391,26 @@ def _unsure_kernel(candidate: np.ndarray, lo: np.ndarray, hi: np.ndarray, margin
                     yy, xx = y + sign * normals[g, 0], x + sign * normals[g, 1]
                     if yy < 0 or yy >= h or xx < 0 or xx >= w:
                         continue            # outside counts as 0: below any candidate
+                    _interval(logit, valid, error, yy, xx, known, lo, hi)
                     c, d = lo[yy, xx], hi[yy, xx]
                     if a <= d and c <= b and not (a == b and c == d):
                         unsure[y, x] = True
-                        unsure[yy, xx] = True
+                        if valid[yy, xx]:
+                            unsure[yy, xx] = True
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _interval(logit: np.ndarray, valid: np.ndarray, error: float, y: int, x: int,
+              known: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> None:  # pragma: no cover
+    """[lo, hi] of pixel (y, x)'s float32 probability (0 at an invalid pixel), once."""
+    if known[y, x]:
+        return
+    known[y, x] = True
+    if valid[y, x]:
+        lo[y, x] = _rounded_sigmoid(np.float64(logit[y, x]) - error)
+        hi[y, x] = _rounded_sigmoid(np.float64(logit[y, x]) + error)
+    else:
+        lo[y, x] = hi[y, x] = np.float32(0.0)
 
 
 def _to_uint8(range_mm: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, float]:

@@ -91,9 +91,11 @@ RECHECK_LOGIT_ERROR = {"bfloat16": 0.2, "int8": 0.6}
 # it all would be slower than float32 (docs/performance.md). Trained weights on MD-Test: a
 # median of 8.6 % (int8) and 4.3 % (bfloat16), at most 15 %.
 RECHECK_MAX_SHARE = 0.25
-# Pixels per float32 recheck GEMM: one fixed shape, so oneDNN builds its kernel once (a new
-# pixel count per frame re-created the primitive: ~4 ms per frame).
-RECHECK_CHUNK = 1024
+# Pixels per float32 recheck GEMM: a few fixed shapes, so oneDNN builds each kernel once (a new
+# pixel count per frame re-created the primitive: ~4 ms per frame); the last chunk takes the
+# smallest that holds the rest.
+RECHECK_CHUNKS = (256, 512, 1024)
+RECHECK_CHUNK = RECHECK_CHUNKS[-1]
 
 
 @dataclass(frozen=True)
@@ -460,14 +462,6 @@ class _Engine:
             device=device, backend=backend)
         self.recheck_error = RECHECK_LOGIT_ERROR.get(precision, 0.0)
         self.encoding = enc
-        if self.float32_nets is not None:
-            self.recheck_x = np.zeros((RECHECK_CHUNK, enc.n_boundary_features), np.float32)
-            self.recheck_out = HeadOutputs.zeros(RECHECK_CHUNK)
-            self.recheck_scratch = self.float32_nets.scratch(RECHECK_CHUNK)
-            # F is not run on rechecked pixels, so their bins are never read
-            self.recheck_frame = FrameBins(np.zeros(RECHECK_CHUNK, np.int32),
-                                           np.zeros(RECHECK_CHUNK, np.int32),
-                                           np.ones(RECHECK_CHUNK, bool))
         self.rechecked = 0          # pixels rechecked in float32 in the last frame
         self.recheck_skipped = 0    # frames whose recheck RECHECK_MAX_SHARE skipped
         self.consts = plane_constants(enc)
@@ -482,6 +476,14 @@ class _Engine:
         rows = max(1, BAND_PIXELS // w) if device.type == "cpu" else h
         self.bands = [(y0, min(h, y0 + rows)) for y0 in range(0, h, rows)]
         self.workers = max(1, min(workers if device.type == "cpu" else 1, len(self.bands)))
+        if self.float32_nets is not None:     # one chunk's buffers for the recheck
+            self.recheck_x = np.zeros((RECHECK_CHUNK, enc.n_boundary_features), np.float32)
+            self.recheck_out = HeadOutputs.zeros(RECHECK_CHUNK)
+            self.recheck_scratch = self.float32_nets.scratch(RECHECK_CHUNK)
+            # F is not run on rechecked pixels, so their bins are never read
+            self.recheck_frame = FrameBins(np.zeros(RECHECK_CHUNK, np.int32),
+                                           np.zeros(RECHECK_CHUNK, np.int32),
+                                           np.ones(RECHECK_CHUNK, bool))
         band_dtype = torch.int8 if precision == "int8" else torch.float32
         # flat: a band of n pixels is its first n_inputs * n values, (n_inputs, n) contiguous
         self.x = [torch.empty(rows * w * self.nets.n_inputs, dtype=band_dtype)
@@ -582,18 +584,24 @@ class _Engine:
             return
         nets = self.float32_nets
         part = self.recheck_out
-        frame = self.recheck_frame
         # pixel-major rows, passed as the transposed view the GEMM reads in place
         x = torch.from_numpy(self.recheck_x).t()
-        for i0 in range(0, idx.size, RECHECK_CHUNK):
-            chunk = idx[i0:i0 + RECHECK_CHUNK]
-            n = chunk.size          # rows past n hold an earlier chunk's pixels: not read back
-            encode_pixels(self.r_pad[None], self.la_pad[None], amplitude[None], chunk,
-                          self.encoding, boundary_only=True, out=self.recheck_x)
-            nets.heads(nets.first_layer(x), RECHECK_CHUNK, 0, frame, False, True, part,
-                       self.recheck_scratch)
-            out.best[chunk], out.group[chunk] = part.best[:n], part.group[:n]
-            out.logit[chunk], out.margin[chunk] = part.logit[:n], part.margin[:n]
+        saved = torch.get_num_threads()
+        if idx.size <= RECHECK_CHUNK:     # one chunk: waking a sleeping thread costs more
+            torch.set_num_threads(1)
+        try:
+            for i0 in range(0, idx.size, RECHECK_CHUNK):
+                chunk = idx[i0:i0 + RECHECK_CHUNK]
+                n = chunk.size      # rows past n hold an earlier chunk's pixels: not read back
+                size = next(c for c in RECHECK_CHUNKS if c >= n)
+                encode_pixels(self.r_pad[None], self.la_pad[None], amplitude[None], chunk,
+                              self.encoding, boundary_only=True, out=self.recheck_x)
+                nets.heads(nets.first_layer(x[:, :size]), size, 0, self.recheck_frame, False,
+                           True, part, self.recheck_scratch)
+                out.best[chunk], out.group[chunk] = part.best[:n], part.group[:n]
+                out.logit[chunk], out.margin[chunk] = part.logit[:n], part.margin[:n]
+        finally:
+            torch.set_num_threads(saved)
 
 
 def _single_threaded(fn: Any, *args: Any) -> None:
