@@ -178,26 +178,33 @@ def _heads(logits: np.ndarray) -> tuple[np.ndarray, ...]:
 
 
 @pytest.mark.parametrize("seed", range(4))
-def test_rechecking_the_unsure_pixels_restores_the_exact_nms_and_hysteresis(seed: int) -> None:
-    """Head logits moved by up to ``error`` (a reduced precision): once the pixels
-    :func:`unsure_edge_decisions` names carry their exact values again, non-maximum
-    suppression plus hysteresis give exactly the exact map, while without it they do not."""
+@pytest.mark.parametrize("pair_share", [1.0, 0.5])
+def test_rechecking_the_unsure_pixels_restores_the_exact_nms_and_hysteresis(
+        seed: int, pair_share: float) -> None:
+    """Head logits off by up to ``error``, two of them by up to ``pair_error`` from each other (a
+    reduced precision): once the pixels :func:`unsure_edge_decisions` names carry their exact
+    values again, non-maximum suppression plus hysteresis give exactly the exact map, while
+    without it they do not."""
     from scipy.ndimage import gaussian_filter
 
     rng = np.random.default_rng(seed)
     h, w, error, low, high = 60, 80, 0.3, 0.6, 0.95
+    pair_error = 2 * error * pair_share
     # smooth ridges of edge evidence: many near-ties along them, as trained G heads give
     field = gaussian_filter(rng.normal(size=(4, h, w)), (0, 2, 2)) * 40.0 - 2.0
     exact = _heads(field.astype(np.float32))
-    noisy = _heads((field + rng.uniform(-error, error, field.shape)).astype(np.float32))
+    # a shared offset plus independent parts: |error| <= error, pairwise <= pair_error
+    shared = rng.uniform(-1, 1) * (error - pair_error / 2)
+    offset = shared + rng.uniform(-pair_error / 2, pair_error / 2, field.shape)
+    noisy = _heads((field + offset).astype(np.float32))
     valid = rng.random((h, w)) > 0.02
 
     def nms_hysteresis(best: np.ndarray, group: np.ndarray) -> np.ndarray:
         best = np.where(valid, best, 0.0).astype(np.float32)
         return hysteresis(non_maximum_suppression(best, group), best, low, high)
 
-    unsure = unsure_edge_decisions(noisy[2], noisy[3], noisy[1], valid, error, low=low,
-                                   high=high)
+    unsure = unsure_edge_decisions(np.where(valid, noisy[2], -np.inf), noisy[3], noisy[1],
+                                   valid, error, pair_error, low=low, high=high)
     merged = [np.where(unsure, e, n) for e, n in zip(exact[:2], noisy[:2], strict=True)]
     want = nms_hysteresis(*exact[:2])
     assert want.sum() > 50                                        # edges to decide
@@ -216,7 +223,10 @@ def test_nothing_is_unsure_where_no_pixel_can_reach_the_high_threshold() -> None
     group = np.zeros(logit.shape, np.int64)
     valid = np.ones(logit.shape, bool)
     # sigmoid(0.15 + 0.3) = 0.61 < 0.95: certain non-edges
-    assert not unsure_edge_decisions(logit, margin, group, valid, 0.3, low=0.3, high=0.95).any()
-    assert unsure_edge_decisions(logit, margin, group, valid, 3.0, low=0.3, high=0.95).all()
-    with pytest.raises(InputError):
-        unsure_edge_decisions(logit, margin, group, valid, -0.1)
+    assert not unsure_edge_decisions(logit, margin, group, valid, 0.3, 0.6, low=0.3,
+                                     high=0.95).any()
+    assert unsure_edge_decisions(logit, margin, group, valid, 3.0, 6.0, low=0.3,
+                                 high=0.95).all()
+    for error, pair_error in ((-0.1, 0.0), (0.1, 0.3)):
+        with pytest.raises(InputError):
+            unsure_edge_decisions(logit, margin, group, valid, error, pair_error)

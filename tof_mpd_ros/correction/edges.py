@@ -283,21 +283,26 @@ def edge_map_from_best(best: np.ndarray, group: np.ndarray, *, low: float = 0.3,
 
 
 def unsure_edge_decisions(logit: np.ndarray, margin: np.ndarray, group: np.ndarray,
-                          valid: np.ndarray, error: float, *, low: float = 0.3,
-                          high: float = 0.6) -> np.ndarray:
-    """Pixels whose part in :func:`edge_map_from_best` may change if every logit moves by up to
-    ``error``: where a reduced-precision G must be recomputed in float32 to give float32's edges.
+                          valid: np.ndarray, error: float, pair_error: float, *,
+                          low: float = 0.3, high: float = 0.6) -> np.ndarray:
+    """Pixels whose part in :func:`edge_map_from_best` may change if every logit is off by up
+    to ``error`` and two logits' errors differ by up to ``pair_error``: where a
+    reduced-precision G must be recomputed in float32 to give float32's edges.
 
     A head's probability is the float32 rounding of ``sigmoid(logit)``, increasing in the logit,
     so a pixel's float32 probability lies in ``[sigmoid(logit - error), sigmoid(logit + error)]``
-    (both rounded). Only a pixel that can reach ``low`` and whose 8-connected run of such pixels
-    can reach ``high`` can be an edge; at such a candidate a decision is unsure where
+    (both rounded), and two logits more than ``pair_error`` apart keep their order. Only a pixel
+    that can reach ``low`` and whose 8-connected run of such pixels can reach ``high`` can be an
+    edge (a candidate). A candidate that is certainly not a local maximum (a neighbour along
+    each normal it may have is certainly larger) decides nothing of its own; at the others a
+    decision is unsure where
 
     * its interval contains ``low`` or ``high`` (hysteresis),
-    * its runner-up head is within ``2 error`` (the group, which picks the NMS neighbours),
-    * its interval and that of a neighbour it is compared with in non-maximum suppression
-      overlap (two single equal points are a certain tie) — then both are unsure; a candidate
-      with an unsure group is compared with all 8 neighbours.
+    * its runner-up head is within ``pair_error`` (the group, which picks the NMS neighbours),
+    * a neighbour it is compared with in non-maximum suppression is within ``pair_error``, or
+      both are so close to 1 that float32 may round them equal (logits above
+      :data:`_ROUNDS_TOGETHER`) — then both are unsure; a candidate with an unsure group is
+      compared along all four normals.
 
     Recomputing the unsure pixels makes every decision at candidate pixels float32's. Not
     covered: the staircase thinning also reads maxima up to 2 px from a candidate (measured on
@@ -308,15 +313,18 @@ def unsure_edge_decisions(logit: np.ndarray, margin: np.ndarray, group: np.ndarr
         margin: (H, W) float32 its lead over the runner-up head (>= 0).
         group: (H, W) integer group 0..3 of the best head.
         valid: (H, W) bool pixels with a measurement (others have probability 0, certain).
-        error: the largest logit error assumed (>= 0).
+        error: the largest error of one logit assumed (>= 0).
+        pair_error: the largest difference assumed between the errors of two logits (two
+            pixels', or two heads' of one pixel); at most ``2 error``.
         low, high: the hysteresis thresholds on the probability.
 
     Returns:
         (H, W) bool, True where the pixel must be recomputed.
     """
     _check_thresholds(low, high)
-    if not error >= 0:
-        raise InputError(f"error must be >= 0, got {error}")
+    if not (error >= 0 and 0 <= pair_error <= 2 * error):
+        raise InputError(f"need error >= 0 and 0 <= pair_error <= 2 error, got {error}, "
+                         f"{pair_error}")
     logit = np.ascontiguousarray(logit, np.float32)
     valid = np.ascontiguousarray(valid, bool)
     can_be_weak = np.zeros(logit.shape, np.uint8)
@@ -335,10 +343,16 @@ def unsure_edge_decisions(logit: np.ndarray, margin: np.ndarray, group: np.ndarr
     lo = np.empty(logit.shape, np.float32)
     hi = np.empty(logit.shape, np.float32)
     _unsure_kernel(seeded[labels], logit, valid, np.ascontiguousarray(margin, np.float32),
-                   np.ascontiguousarray(group, np.int64), float(error), np.float32(low),
-                   np.float32(high), GROUP_NORMALS, np.zeros(logit.shape, bool), lo, hi,
-                   unsure)
+                   np.ascontiguousarray(group, np.int64), float(error), float(pair_error),
+                   np.float32(low), np.float32(high), GROUP_NORMALS,
+                   np.zeros(logit.shape, bool), lo, hi, unsure)
     return unsure
+
+
+# Logits above this may round to equal float32 probabilities though more than a pair error
+# apart: near 1 one float32 step (6e-8) spans 6e-8 / (1 - p) in logit, 0.2 at 15.2 (so ties
+# there are treated as possible); below 14 a step spans under 0.02.
+_ROUNDS_TOGETHER = 14.0
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
@@ -366,37 +380,61 @@ def _reachable(logit: np.ndarray, valid: np.ndarray, error: float, near: float,
 
 @numba.njit(cache=True, nogil=True)
 def _unsure_kernel(candidate: np.ndarray, logit: np.ndarray, valid: np.ndarray,
-                   margin: np.ndarray, group: np.ndarray, error: float, low: np.float32,
-                   high: np.float32, normals: np.ndarray, known: np.ndarray, lo: np.ndarray,
-                   hi: np.ndarray, unsure: np.ndarray) -> None:  # pragma: no cover
+                   margin: np.ndarray, group: np.ndarray, error: float, pair_error: float,
+                   low: np.float32, high: np.float32, normals: np.ndarray, known: np.ndarray,
+                   lo: np.ndarray, hi: np.ndarray, unsure: np.ndarray) -> None:  # pragma: no cover
     """:func:`unsure_edge_decisions`' rules at the candidate pixels, marking ``unsure``; the
     probability interval of a pixel is computed the first time it is needed (``known``)."""
     h, w = logit.shape
-    group_error = 2.0 * error
     for y in range(h):
         for x in range(w):
             if not candidate[y, x]:
                 continue
+            any_group = margin[y, x] <= pair_error
+            if _certainly_suppressed(logit, y, x, group[y, x], any_group, pair_error, normals):
+                continue
             _interval(logit, valid, error, y, x, known, lo, hi)
             a, b = lo[y, x], hi[y, x]
-            if (a < low <= b) or (a < high <= b):
+            if (a < low <= b) or (a < high <= b) or any_group:
                 unsure[y, x] = True
-            any_group = margin[y, x] <= group_error
-            if any_group:
-                unsure[y, x] = True
+            lp = np.float64(logit[y, x])
             for g in range(4):
                 if not any_group and g != group[y, x]:
                     continue
                 for sign in (-1, 1):
                     yy, xx = y + sign * normals[g, 0], x + sign * normals[g, 1]
-                    if yy < 0 or yy >= h or xx < 0 or xx >= w:
-                        continue            # outside counts as 0: below any candidate
-                    _interval(logit, valid, error, yy, xx, known, lo, hi)
-                    c, d = lo[yy, xx], hi[yy, xx]
-                    if a <= d and c <= b and not (a == b and c == d):
-                        unsure[y, x] = True
-                        if valid[yy, xx]:
+                    if yy < 0 or yy >= h or xx < 0 or xx >= w or not valid[yy, xx]:
+                        continue            # outside or invalid counts as 0: below p
+                    lq = np.float64(logit[yy, xx])
+                    if abs(lp - lq) <= pair_error or min(lp, lq) > _ROUNDS_TOGETHER - error:
+                        _interval(logit, valid, error, yy, xx, known, lo, hi)
+                        c, d = lo[yy, xx], hi[yy, xx]
+                        if a <= d and c <= b and not (a == b and c == d):
+                            unsure[y, x] = True
                             unsure[yy, xx] = True
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _certainly_suppressed(logit: np.ndarray, y: int, x: int, own: int, any_group: bool,
+                          pair_error: float, normals: np.ndarray) -> bool:  # pragma: no cover
+    """Whether along every normal pixel (y, x) may take (its group's, or all four when its
+    group is unsure) a neighbour's logit exceeds its own by more than ``pair_error``, below
+    where float32 rounds probabilities together: then it is no maximum in float32 either."""
+    h, w = logit.shape
+    lp = np.float64(logit[y, x])
+    for g in range(4):
+        if not any_group and g != own:
+            continue
+        beaten = False
+        for sign in (-1, 1):
+            yy, xx = y + sign * normals[g, 0], x + sign * normals[g, 1]
+            if 0 <= yy < h and 0 <= xx < w:
+                lq = np.float64(logit[yy, xx])
+                if lq - lp > pair_error and lp < _ROUNDS_TOGETHER:
+                    beaten = True
+        if not beaten:
+            return False
+    return True
 
 
 @numba.njit(cache=True, nogil=True, inline="always")

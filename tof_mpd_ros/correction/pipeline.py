@@ -81,11 +81,13 @@ from .networks import (
 # small layers. Measured on a 2-core Xeon (docs/performance.md, session 20): at 320x240, 2880
 # beat 1440 by 4-9 % and 5760 by 3-10 %; at 180x140 1440 to 5760 were within the noise.
 BAND_PIXELS = 2880
-# Reduced precisions: the largest error assumed of G's logit differences against float32, for
-# the pixels rechecked in float32 (``edges.unsure_edge_decisions``). Measured on MD-Test (45
-# frames, shipped weights, docs/performance.md): at most 0.32 in int8 and 0.10 in bfloat16
-# (99.99th percentiles 0.20 and 0.055); these are about twice that.
-RECHECK_LOGIT_ERROR = {"bfloat16": 0.2, "int8": 0.6}
+# Reduced precisions: the largest error assumed of one of G's logit differences against
+# float32, and of the difference between two such errors (two pixels', or two heads' of one
+# pixel), for the pixels rechecked in float32 (``edges.unsure_edge_decisions``). Measured on
+# MD-Test (45 frames, shipped weights, docs/performance.md), int8 / bfloat16: one logit at most
+# 0.32 / 0.10 (99.99th percentiles 0.20 / 0.055); neighbours along a normal 0.34 / 0.11, a
+# pixel's best and runner-up heads 0.38 / 0.11. These are about twice that.
+RECHECK_LOGIT_ERROR = {"bfloat16": (0.2, 0.23), "int8": (0.6, 0.75)}
 # A frame with more unsure pixels than this share of its valid ones keeps the reduced edges:
 # G is undecided nearly everywhere (untrained weights score ~0.5 at every pixel), and checking
 # it all would be slower than float32 (docs/performance.md). Trained weights on MD-Test: a
@@ -460,7 +462,7 @@ class _Engine:
         self.float32_nets = None if precision == "float32" else PatchNets(
             model.range_net, model.boundary_nets, enc.patch_size, enc.n_bins, "float32",
             device=device, backend=backend)
-        self.recheck_error = RECHECK_LOGIT_ERROR.get(precision, 0.0)
+        self.recheck_error = RECHECK_LOGIT_ERROR.get(precision, (0.0, 0.0))
         self.encoding = enc
         self.rechecked = 0          # pixels rechecked in float32 in the last frame
         self.recheck_skipped = 0    # frames whose recheck RECHECK_MAX_SHARE skipped
@@ -572,7 +574,7 @@ class _Engine:
         out = self.out
         unsure = unsure_edge_decisions(
             out.logit.reshape(h, w), out.margin.reshape(h, w), out.group.reshape(h, w),
-            self.frame.valid.reshape(h, w), self.recheck_error, low=params.edge_low,
+            self.frame.valid.reshape(h, w), *self.recheck_error, low=params.edge_low,
             high=params.edge_high)
         idx = np.flatnonzero(unsure)
         self.rechecked = 0
