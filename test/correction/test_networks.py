@@ -113,6 +113,13 @@ def test_patch_nets_equal_modules(backend: str) -> None:
     np.testing.assert_allclose(out.best[ok], probs.max(1)[ok], rtol=0, atol=1e-5)
     np.testing.assert_array_equal(out.group[ok], probs.argmax(1)[ok])
     assert not out.best[~ok].any() and not out.group[~ok].any()
+    with torch.no_grad():     # the best head's logit difference and its lead over the next
+        logits = g(feats)
+        diffs = np.sort((logits[..., 1] - logits[..., 0]).numpy(), axis=1)
+    np.testing.assert_allclose(out.logit[ok], diffs[ok, -1], rtol=0, atol=1e-4)
+    np.testing.assert_allclose(out.margin[ok], (diffs[:, -1] - diffs[:, -2])[ok], rtol=0,
+                               atol=2e-4)
+    assert (out.logit[~ok] == -np.inf).all() and (out.margin[~ok] == np.inf).all()
     out16 = _run_patch_nets(PatchNets(f, g, 11, 20, "bfloat16", backend=backend), r, a, cfg)
     assert np.abs(out16.correction - out.correction)[ok].max() < 0.1          # mm
     assert np.abs(out16.best - out.best)[ok].max() < 0.02

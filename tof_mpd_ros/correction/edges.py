@@ -391,7 +391,8 @@ def _unsure_kernel(candidate: np.ndarray, logit: np.ndarray, valid: np.ndarray,
             if not candidate[y, x]:
                 continue
             any_group = margin[y, x] <= pair_error
-            if _certainly_suppressed(logit, y, x, group[y, x], any_group, pair_error, normals):
+            if _certainly_suppressed(logit, y, x, group[y, x], any_group, error, pair_error,
+                                     normals):
                 continue
             _interval(logit, valid, error, y, x, known, lo, hi)
             a, b = lo[y, x], hi[y, x]
@@ -416,12 +417,16 @@ def _unsure_kernel(candidate: np.ndarray, logit: np.ndarray, valid: np.ndarray,
 
 @numba.njit(cache=True, nogil=True, inline="always")
 def _certainly_suppressed(logit: np.ndarray, y: int, x: int, own: int, any_group: bool,
-                          pair_error: float, normals: np.ndarray) -> bool:  # pragma: no cover
+                          error: float, pair_error: float,
+                          normals: np.ndarray) -> bool:  # pragma: no cover
     """Whether along every normal pixel (y, x) may take (its group's, or all four when its
-    group is unsure) a neighbour's logit exceeds its own by more than ``pair_error``, below
-    where float32 rounds probabilities together: then it is no maximum in float32 either."""
+    group is unsure) a neighbour's logit exceeds its own by more than ``pair_error``, its own
+    (even ``error`` higher) below where float32 rounds probabilities together: then it is no
+    maximum in float32 either."""
     h, w = logit.shape
     lp = np.float64(logit[y, x])
+    if lp >= _ROUNDS_TOGETHER - error:
+        return False
     for g in range(4):
         if not any_group and g != own:
             continue
@@ -430,7 +435,7 @@ def _certainly_suppressed(logit: np.ndarray, y: int, x: int, own: int, any_group
             yy, xx = y + sign * normals[g, 0], x + sign * normals[g, 1]
             if 0 <= yy < h and 0 <= xx < w:
                 lq = np.float64(logit[yy, xx])
-                if lq - lp > pair_error and lp < _ROUNDS_TOGETHER:
+                if lq - lp > pair_error:
                     beaten = True
         if not beaten:
             return False

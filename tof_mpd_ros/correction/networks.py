@@ -813,13 +813,13 @@ def _heads_torch(wts: FusedWeights, first: torch.Tensor, pixels: slice, frame: F
             hg = torch.baddbmm(wts.g_b2[:, :, None], wts.g_w2, hg).relu_()
             logits = torch.baddbmm(wts.g_b3[:, :, None], wts.g_w3, hg)
             diffs = logits[:, 1] - logits[:, 0]                        # (heads, n)
-            top = diffs.topk(2, dim=0)
-            best = (1.0 / (1.0 + torch.exp(-top.values[0].double()))).float()
+            top = diffs.topk(min(2, n_heads), dim=0).values
+            best = (1.0 / (1.0 + torch.exp(-top[0].double()))).float()
             valid = torch.from_numpy(frame.valid[pixels]).to(dev)
             out.best[pixels] = torch.where(valid, best, 0.0).cpu().numpy()
             # the first maximum on ties, as the kernel (topk's order on ties is unspecified)
             group = diffs.argmax(dim=0)
             out.group[pixels] = torch.where(valid, group, 0).to(torch.int8).cpu().numpy()
-            out.logit[pixels] = torch.where(valid, top.values[0], -torch.inf).cpu().numpy()
-            margin = top.values[0] - top.values[1]
+            out.logit[pixels] = torch.where(valid, top[0], -torch.inf).cpu().numpy()
+            margin = top[0] - top[1] if n_heads > 1 else torch.full_like(top[0], torch.inf)
             out.margin[pixels] = torch.where(valid, margin, torch.inf).cpu().numpy()
