@@ -91,7 +91,7 @@ RECHECK_LOGIT_ERROR = {"bfloat16": (0.2, 0.23), "int8": (0.6, 0.75)}
 # A frame with more unsure pixels than this share of its valid ones keeps the reduced edges:
 # G is undecided nearly everywhere (untrained weights score ~0.5 at every pixel), and checking
 # it all would be slower than float32 (docs/performance.md). Trained weights on MD-Test: a
-# median of 8.6 % (int8) and 4.3 % (bfloat16), at most 15 %.
+# median of 5.3 % (int8) and 1.7 % (bfloat16), at most 11.3 %.
 RECHECK_MAX_SHARE = 0.25
 # Pixels per float32 recheck GEMM: a few fixed shapes, so oneDNN builds each kernel once (a new
 # pixel count per frame re-created the primitive: ~4 ms per frame); the last chunk takes the
@@ -556,7 +556,6 @@ class _Engine:
         edges, filtered = _filter_from_best(geodesic, range_f, best, group)
         final = np.where(valid, filtered, nan).astype(np.float32)
         return final, edges, confidence, calib, range_f, valid
-
 
     def _recheck_unsure(self, amplitude: np.ndarray, params: GeodesicParams) -> None:
         """G again in float32 at the pixels whose edge decision a reduced precision's error
