@@ -160,6 +160,13 @@ def test_another_camera_conceals_physics_not_its_own_values():
                                                * camera["amplitude_scale"])
     assert oracle.params("pixel_offset")["seed"] == camera["effects"]["pixel_offset"]["seed"]
     assert oracle.enabled("lens_scatter") and oracle.enabled("noise_model")
+    # the materials the case's pixels see, for diagnostics: one map per frame, of the
+    # library's materials, the table's diffuse one among them
+    from tof_mpd_ros.sim.objects import MATERIAL_NAMES
+    assert [m.shape for m in case.materials] == [f.range_mm.shape for f in case.frames]
+    assert all(m.dtype == np.int32 for m in case.materials)
+    assert set(np.unique(case.materials[0])) <= {-1, *MATERIAL_NAMES}
+    assert (case.materials[0] == 0).mean() > 0.3
     with pytest.raises(ValueError):
         generate_case(np.random.default_rng(5), ("multipath",), base="pathtrace")
 

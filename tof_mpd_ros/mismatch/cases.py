@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -33,6 +33,7 @@ from ..sim.raycast import render_surface
 from ..sim.scene import Scene, make_scene
 from ..sim.structured_light import FusionConfig, reference_range
 from ..sim.tof import ToFConfig, render_tof, wiggle_mm
+from ..sim.tof.render import centre_samples
 from .profile import with_amplitude_units
 
 #: effects the benchmark conceals; ``phase_wrapping`` is nominal and has no parameter, and at
@@ -184,10 +185,14 @@ class Case:
     Attributes:
         frames: the "real" frames (range, amplitude, SL reference, nominal poses and stamps).
         labels: hidden truth: ``{"effects": [{"name", "params"}], ...}``; never shown to the tool.
+        materials: per frame, (H, W) int32 material id (``objects.MATERIAL_NAMES``; −1 = no
+            surface) of the true view at each pixel's centre: for diagnosing what a base's
+            materials leave unexplained; never shown to the tool either.
     """
 
     frames: list[ToFFrame]
     labels: dict[str, Any]
+    materials: list[np.ndarray] = field(default_factory=list)
 
 
 def _true_pose(sweep: Sweep, scene: Scene, t_s: float, effects: dict[str, dict]) -> np.ndarray:
@@ -286,12 +291,13 @@ def generate_case(rng: np.random.Generator, effects: Sequence[str], *, n_frames:
         sweep = Sweep(sweep.start, sweep.start, 0.0, sweep.duration_s)
     cfg = real_config(drawn, profile)
     k = 1.0 if profile is None else float(profile["amplitude_scale"])
-    frames = []
+    frames, materials = [], []
     for i in range(n_frames):
         t_s = i * FRAME_PERIOD_S
         nominal_pose = sweep.pose_mm(scene, t_s)
         true_pose = _true_pose(sweep, scene, t_s, drawn)
         surface = render_surface(scene, true_pose, intrinsics.scaled(supersample))
+        materials.append(centre_samples(surface, supersample).material_id.astype(np.int32))
         transport = (_traced(scene, true_pose, intrinsics, cfg, int(rng.integers(0, 1 << 16)))
                      if base == "pathtrace" else None)
         meas = render_tof(surface, cfg, rng, supersample=supersample, frame_index=i,
@@ -305,7 +311,7 @@ def generate_case(rng: np.random.Generator, effects: Sequence[str], *, n_frames:
               "static": bool(static),
               "camera": profile, "n_frames": n_frames, "scene_objects": len(scene.objects),
               "sweep": {"start": sweep.start, "end": sweep.end, "wobble": sweep.wobble}}
-    return Case(frames, labels)
+    return Case(frames, labels, materials)
 
 
 def _traced(scene: Scene, pose_mm: np.ndarray, intrinsics: Intrinsics, cfg: ToFConfig,
