@@ -45,6 +45,7 @@ from .profile import (
     albedo_from_interreflection,
     describe_profile,
 )
+from .specular import specular_masks
 from .wording import phrase
 
 _log = logging.getLogger(__name__)
@@ -247,7 +248,12 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
         raise MismatchError("the monitor workflow needs the config of an earlier run")
     given = ToFConfig.nominal() if config is None else config
     base, facts = adopt_recording(frames, given, keep_units=monitor)
-    problem, descriptors = build_problem(frames, base, reference_noise_mm, edge_exclusion_px)
+    # a surface brighter from one view than from another is not Lambertian: the predictor's
+    # transport cannot light it, so it is left out and counted (:mod:`.specular`)
+    specular = specular_masks(frames)
+    facts = {**facts, "specular_share": _share(specular, frames)}
+    problem, descriptors = build_problem(frames, base, reference_noise_mm, edge_exclusion_px,
+                                         specular)
     predictors = problem.predictors
     residual0, sigma0 = _residuals(problem, None)
     location = locate(descriptors, residual0, sigma0)
@@ -294,9 +300,12 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
 
 def build_problem(frames: Sequence[ToFFrame], base: ToFConfig,
                   reference_noise_mm: float = REFERENCE_NOISE_MM,
-                  edge_exclusion_px: float = 0.0) -> tuple[Problem, list[dict[str, np.ndarray]]]:
+                  edge_exclusion_px: float = 0.0,
+                  specular: Sequence[np.ndarray] | None = None,
+                  ) -> tuple[Problem, list[dict[str, np.ndarray]]]:
     """The fitting problem of ``frames`` predicted from ``base`` (split, usable pixels, edge
-    jumps) and every frame's pixel descriptors.
+    jumps) and every frame's pixel descriptors; ``specular``: per frame, (H, W) bool pixels
+    left out as well (:func:`.specular.specular_masks`).
 
     Raises:
         MismatchError: no pixel has both a real range and a predicted one.
@@ -311,6 +320,8 @@ def build_problem(frames: Sequence[ToFFrame], base: ToFConfig,
     usable = [np.isfinite(r) & np.isfinite(p.predict().range_mm)
               & (d["edge_distance_px"] >= edge_exclusion_px)
               for r, p, d in zip(real, predictors, descriptors, strict=True)]
+    if specular is not None:
+        usable = [u & ~s for u, s in zip(usable, specular, strict=True)]
     if not any(u.any() for u in usable):
         raise MismatchError("no pixel has both a real range and a predicted one")
     jumps = [edge_jump_mm(f.reference_mm) for f in frames]
@@ -665,6 +676,14 @@ class _Search:
 
     def _rebase(self, config: ToFConfig) -> None:
         self.problem = _rebased(self.problem, config)
+
+
+def _share(masks: Sequence[np.ndarray], frames: Sequence[ToFFrame]) -> float:
+    """Share of the frames' measured pixels that ``masks`` flag."""
+    measured = sum(int(np.isfinite(f.range_mm).sum()) for f in frames)
+    flagged = sum(int((m & np.isfinite(f.range_mm)).sum()) for m, f in zip(masks, frames,
+                                                                              strict=True))
+    return flagged / max(measured, 1)
 
 
 def _rebased(p: Problem, config: ToFConfig) -> Problem:

@@ -32,8 +32,7 @@ from ..pose import make_pose, pose_mm_to_m, rotvec_to_matrix
 from ..sim.raycast import render_surface
 from ..sim.scene import Scene, make_scene
 from ..sim.structured_light import FusionConfig, reference_range
-from ..sim.tof import ToFConfig, render_tof, wiggle_mm
-from ..sim.tof.render import centre_samples
+from ..sim.tof import ToFConfig, centre_samples, render_tof, wiggle_mm
 from .profile import with_amplitude_units
 
 #: effects the benchmark conceals; ``phase_wrapping`` is nominal and has no parameter, and at

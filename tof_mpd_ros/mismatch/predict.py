@@ -134,8 +134,14 @@ def infer_albedo(frame: ToFFrame, config: ToFConfig, smooth_px: int = 3) -> np.n
     Returns:
         (H, W) float64 albedo in ``ALBEDO_RANGE``; 0.5 where amplitude or reference is missing.
     """
-    rho = _nan_median(raw_albedo(frame, config.light_power), smooth_px)
+    rho = median_albedo(frame, config.light_power, smooth_px)
     return np.clip(np.where(np.isfinite(rho), rho, 0.5), *ALBEDO_RANGE)
+
+
+def median_albedo(frame: ToFFrame, light_power: float, smooth_px: int = 3) -> np.ndarray:
+    """(H, W) float64 :func:`raw_albedo` under a ``smooth_px`` x ``smooth_px`` median of its
+    finite values (against noise and mixed edge pixels), unclipped; NaN where none."""
+    return _nan_median(raw_albedo(frame, light_power), smooth_px)
 
 
 def raw_albedo(frame: ToFFrame, light_power: float) -> np.ndarray:

@@ -203,6 +203,8 @@ def profile_items(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any],
       ``grey_world`` (the assumed median albedo);
     * ``"pattern"`` (only when one was found, fact ``pattern_rms_mm``): ``rms_mm``, the
       camera's fixed pattern of per-pixel offsets (:func:`.fit.fixed_pattern`);
+    * ``"specular"`` (only when some were found, fact ``specular_share``): ``share`` of the
+      measured pixels left out as view-dependent surfaces (:mod:`.specular`);
     * ``"albedo"`` (for :data:`ALBEDO_EFFECT` when its gain was read as the scene's albedo):
       ``gain``, ``albedo_scale``, ``units_scale``, ``grey_world``;
     * every other effect of ``effects`` by name: its ``fitted`` and ``nominal`` parameters
@@ -215,6 +217,8 @@ def profile_items(nominal: ToFConfig, fitted: ToFConfig, facts: dict[str, Any],
         items.append({"kind": "units", "scale": k, "grey_world": GREY_WORLD_ALBEDO})
     if facts.get("pattern_rms_mm", 0.0) > 0.0:
         items.append({"kind": "pattern", "rms_mm": facts["pattern_rms_mm"]})
+    if facts.get("specular_share", 0.0) > 0.0:
+        items.append({"kind": "specular", "share": facts["specular_share"]})
     for name in effects:
         p = _numbers(fitted.params(name))
         if name == ALBEDO_EFFECT and "albedo_scale" in facts:

@@ -30,13 +30,20 @@ from .registry import (
     register_effect,
     unregister_effect,
 )
-from .render import ToFMeasurement, pixel_intrinsics, render_from_reference, render_tof
+from .render import (
+    ToFMeasurement,
+    centre_samples,
+    pixel_intrinsics,
+    render_from_reference,
+    render_tof,
+)
 
 __all__ = [
     "DEFAULT_LIGHT_POWER", "DIRECT", "EFFECTS", "NOMINAL_EFFECTS", "SPEED_OF_LIGHT_MM_S",
     "STAGE_ORDER", "Action", "CameraMotion", "CameraMoveEffect", "Effect", "EffectConfig",
     "NoParams", "ParamSpec", "RenderContext", "Step", "ToFConfig", "ToFMeasurement",
-    "ambiguity_range_mm", "direct_phasor", "effect_names", "frame_context", "nominal_effects",
+    "ambiguity_range_mm", "centre_samples", "direct_phasor", "effect_names", "frame_context",
+    "nominal_effects",
     "normals_from_range", "param", "phase_per_mm", "phasor_noise_std", "pipeline_steps",
     "pixel_intrinsics", "register_effect", "render_from_reference", "render_tof", "run_step",
     "surface_from_reference", "unregister_effect", "wiggle_mm",

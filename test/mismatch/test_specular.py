@@ -1,0 +1,68 @@
+"""Specular surfaces: a point brighter from one view than another is flagged, a Lambertian
+scene is not, and a recording without motion or poses flags nothing."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from tof_mpd_ros.mismatch.analysis import analyse
+from tof_mpd_ros.mismatch.specular import SPECULAR_LOG_RATIO, specular_masks, view_dependence
+
+
+def _box(frame) -> np.ndarray:
+    """(H, W) bool pixels of the box (its top stands well above the table)."""
+    ref = frame.reference_mm
+    return ref < np.nanmedian(ref) - 40.0
+
+
+def test_a_lambertian_sweep_looks_alike_from_every_view(sweep):
+    frames = sweep({}, n_frames=4)
+    spread = view_dependence(frames)
+    seen = np.concatenate([np.isfinite(s).ravel() for s in spread])
+    assert seen.mean() > 0.6                      # the views overlap: most points compared
+    values = np.concatenate([s[np.isfinite(s)] for s in spread])
+    assert np.median(values) < 0.05               # shot noise and shading only
+    flagged = np.concatenate([m.ravel() for m in specular_masks(frames)])
+    assert flagged.mean() < 0.01
+
+
+def test_a_surface_three_times_brighter_from_one_view_is_specular(sweep):
+    frames = list(sweep({}, n_frames=4))
+    box = _box(frames[2])
+    assert 0.05 < box.mean() < 0.6
+    frames[2] = replace(frames[2], amplitude=np.where(box, 3.0, 1.0) * frames[2].amplitude)
+    masks = specular_masks(frames)
+    # from the bright view the box differs from all three others by ln 3; from the others,
+    # from one in three (RMS ln 3 / √3 = 0.63): both over the threshold
+    assert np.log(3.0) / np.sqrt(3.0) > SPECULAR_LOG_RATIO
+    for frame, mask in zip(frames, masks, strict=True):
+        box = _box(frame)
+        assert mask[box].mean() > 0.7
+        assert mask[~box].mean() < 0.02
+
+
+def test_a_brighter_frame_a_still_camera_or_no_poses_flag_nothing(sweep):
+    frames = list(sweep({}, n_frames=3))
+    # a whole frame twice as bright (exposure, warm-up) is no surface's doing
+    brighter = [frames[0], replace(frames[1], amplitude=2.0 * frames[1].amplitude), frames[2]]
+    assert not any(m.any() for m in specular_masks(brighter))
+    # a still camera sees every point from one view only
+    still = [frames[0], replace(frames[0], amplitude=0.5 * frames[0].amplitude), frames[0]]
+    assert not any(m.any() for m in specular_masks(still))
+    no_pose = [replace(f, pose=None) for f in frames]
+    assert all(np.isnan(d).all() for d in view_dependence(no_pose))
+
+
+def test_the_report_counts_the_specular_pixels_it_leaves_out(sweep):
+    frames = list(sweep({}, n_frames=4))
+    box = _box(frames[2])
+    frames[2] = replace(frames[2], amplitude=np.where(box, 3.0, 1.0) * frames[2].amplitude)
+    analysis = analyse(frames, max_effects=0)
+    share = analysis.profile_facts["specular_share"]
+    measured = sum(np.isfinite(f.range_mm).sum() for f in frames)
+    boxes = sum((_box(f) & np.isfinite(f.range_mm)).sum() for f in frames)
+    assert 0.7 * boxes / measured < share < boxes / measured + 0.02
+    assert any("brighter from some views" in w and "left out" in w
+               for w in analysis.profile_words)

@@ -1,0 +1,112 @@
+"""Surfaces whose brightness depends on the view: glossy and metal parts the predictor cannot light.
+
+The predictor's light transport is Lambertian: it infers each pixel's albedo from the real
+amplitude (``a = P ρ cosθ / r²``) and sends light on from there in every direction alike. A
+Lambertian surface point then has the same apparent albedo from every view of a sweep; a
+specular one does not — its retro-reflection rises steeply as its normal turns to the camera
+(a rough metal's GGX lobe of α ≈ 0.15 falls ~40× between 0° and 20°), and a dim specular pixel
+shows mostly the mirror image of other surfaces, i.e. a longer range no Lambertian model
+predicts. Measured on path-traced sweeps of the benchmark's scenes (session 23, 10 scenes,
+6 views): the RMS log-ratio of a point's apparent albedo between views has median 0.017 on
+diffuse pixels (1.2 % above 0.4) against 0.54 on metal (61 % above 0.4), 0.066 on glossy
+plastic. Such pixels are left out of fits and scores, as depth-edge pixels can be, and counted
+in the report: the data, not the material, says which surfaces the model cannot explain.
+
+Needs the frames' poses and a moving camera: a static recording sees every point from one
+view only, and nothing is flagged.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy import ndimage
+
+from ..frame import ToFFrame
+from .features import depth_edges
+from .predict import median_albedo
+
+#: RMS log-ratio of a point's apparent albedo between views above which it is specular
+#: (e^0.2 ≈ 1.22: a fifth brighter from another view, after the pair's common gain)
+SPECULAR_LOG_RATIO = 0.2
+#: a reprojected point is the same surface when the other view's reference range agrees
+#: within this (mm); otherwise it is occluded there
+SAME_SURFACE_MM = 5.0
+#: pixels this close to a reference depth edge (px) are not judged
+EDGE_MARGIN_PX = 1
+
+
+def _world_points(frame: ToFFrame) -> np.ndarray:
+    """(H, W, 3) float64 reference points of ``frame`` in the arm's base frame, mm."""
+    pose = np.asarray(frame.pose, np.float64)
+    points = frame.intrinsics.backproject(frame.reference_mm)
+    return points @ pose[:3, :3].T + 1000.0 * pose[:3, 3]
+
+
+def _seen_from(points: np.ndarray, frame: ToFFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Where ``frame`` sees the base-frame ``points`` (H, W, 3, mm): its nearest pixel's flat
+    index and whether that pixel sees the same surface (in view, not occluded)."""
+    pose = np.asarray(frame.pose, np.float64)
+    k = frame.intrinsics
+    local = (points - 1000.0 * pose[:3, 3]) @ pose[:3, :3]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        uv = np.rint(k.project(local))
+    ok = np.isfinite(uv).all(axis=-1) & (local[..., 2] > 0)
+    u = np.where(ok, uv[..., 0], -1).astype(np.int64)
+    v = np.where(ok, uv[..., 1], -1).astype(np.int64)
+    ok &= (u >= 0) & (u < k.width) & (v >= 0) & (v < k.height)
+    flat = np.where(ok, v * k.width + u, 0)
+    their = frame.reference_mm.ravel()[flat]
+    with np.errstate(invalid="ignore"):
+        ok &= np.abs(their - np.linalg.norm(local, axis=-1)) < SAME_SURFACE_MM
+    return flat, ok
+
+
+def _log_albedo(frame: ToFFrame) -> np.ndarray:
+    """(H, W) float64 log apparent albedo (at unit light power); NaN within
+    ``EDGE_MARGIN_PX`` of a reference depth edge, where the median window mixes two surfaces
+    and the reference's normals are unreliable."""
+    albedo = median_albedo(frame, 1.0)
+    near_edge = ndimage.binary_dilation(depth_edges(frame.reference_mm),
+                                        iterations=EDGE_MARGIN_PX)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where((albedo > 0) & ~near_edge, np.log(albedo), np.nan)
+
+
+def view_dependence(frames: Sequence[ToFFrame]) -> list[np.ndarray]:
+    """Per frame, (H, W) float64 RMS over the other frames of log(apparent albedo there /
+    apparent albedo here) at the same surface point, each pair's median log-ratio taken out;
+    NaN where no other frame sees it (or without poses). The light's power cancels."""
+    if len(frames) < 2 or any(f.pose is None for f in frames):
+        return [np.full(f.range_mm.shape, np.nan) for f in frames]
+    log_albedo = [_log_albedo(f) for f in frames]
+    out = []
+    for i, frame in enumerate(frames):
+        points = _world_points(frame)
+        total = np.zeros(frame.range_mm.shape)
+        count = np.zeros(frame.range_mm.shape)
+        for j, other in enumerate(frames):
+            if j == i:
+                continue
+            flat, seen = _seen_from(points, other)
+            d = log_albedo[j].ravel()[flat] - log_albedo[i]
+            use = seen & np.isfinite(d)
+            if not use.any():
+                continue
+            # a frame brighter as a whole (exposure, warm-up) is no surface's doing: the
+            # pair's common gain, the median over the points both see, is taken out
+            d = d - np.median(d[use])
+            total += np.where(use, d * d, 0.0)
+            count += use
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out.append(np.where(count > 0, np.sqrt(total / count), np.nan))
+    return out
+
+
+def specular_masks(frames: Sequence[ToFFrame],
+                   threshold: float = SPECULAR_LOG_RATIO) -> list[np.ndarray]:
+    """Per frame, (H, W) bool: pixels whose apparent albedo changes between views by more
+    than ``threshold`` (RMS log-ratio) — a specular surface, not a Lambertian one."""
+    return [np.nan_to_num(d, nan=0.0) > threshold
+            for d in view_dependence(frames)]
