@@ -104,8 +104,9 @@ class Analysis:
         workflow: ``"one-shot"`` (no config given: the camera's profile is fitted first) or
             ``"monitor"`` (a config from an earlier run: only what changed since).
         profile: profile effects fitted in the one-shot workflow, strongest first.
-        profile_facts: what the recording states, the amplitude units chosen and the RMS of the
-            camera's fixed pattern (``pattern_rms_mm``)
+        profile_facts: what the recording states, the amplitude units chosen, the RMS of the
+            camera's fixed pattern (``pattern_rms_mm``) and the share of the measured pixels
+            left out as specular (``specular_share``, :mod:`.specular`)
             (:func:`.profile.adopt_recording`).
         profile_words: the camera's profile in words, relative to the nominal cell.
         unexplained: candidates that fitted best but are not taken, with why (``case``: a
