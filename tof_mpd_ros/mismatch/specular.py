@@ -9,9 +9,9 @@ shows mostly the mirror image of other surfaces, i.e. a longer range no Lamberti
 predicts. Measured on path-traced sweeps of the benchmark's scenes (session 23, development
 seeds 3001-3006, 6 views), the share of pixels above ``SPECULAR_LOG_RATIO``: metal 47 %, glossy
 plastic 5.4 %, diffuse and translucent 0.1 %; on the built-in renderer's sweeps of the same
-scenes (every surface Lambertian) 0.0 %. Such pixels are left out of fits and scores, as
-depth-edge pixels can be, and counted in the report: the data, not the material, says which
-surfaces the model cannot explain.
+scenes (every surface Lambertian) 0.0 % of diffuse, 0.2 % of translucent pixels. Such pixels
+are left out of fits and scores, as depth-edge pixels can be, and counted in the report: the
+data, not the material, says which surfaces the model cannot explain.
 
 Needs the frames' poses and a moving camera: a static recording sees every point from one
 view only, and nothing is flagged.
