@@ -680,7 +680,8 @@ class _Search:
 
 
 def _share(masks: Sequence[np.ndarray], frames: Sequence[ToFFrame]) -> float:
-    """Share of the frames' measured pixels that ``masks`` flag."""
+    """Share of the frames' measured pixels (finite range) that ``masks`` flag; ``masks``:
+    per frame, (H, W) bool on the frame's grid."""
     measured = sum(int(np.isfinite(f.range_mm).sum()) for f in frames)
     flagged = sum(int((m & np.isfinite(f.range_mm)).sum()) for m, f in zip(masks, frames,
                                                                               strict=True))

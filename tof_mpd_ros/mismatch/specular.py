@@ -25,6 +25,7 @@ import numpy as np
 from scipy import ndimage
 
 from ..frame import ToFFrame
+from ..pose import invert_pose, pose_m_to_mm, transform_points
 from .features import depth_edges
 from .predict import median_albedo
 
@@ -40,17 +41,15 @@ EDGE_MARGIN_PX = 1
 
 def _world_points(frame: ToFFrame) -> np.ndarray:
     """(H, W, 3) float64 reference points of ``frame`` in the arm's base frame, mm."""
-    pose = np.asarray(frame.pose, np.float64)
-    points = frame.intrinsics.backproject(frame.reference_mm)
-    return points @ pose[:3, :3].T + 1000.0 * pose[:3, 3]
+    return transform_points(pose_m_to_mm(frame.pose),
+                            frame.intrinsics.backproject(frame.reference_mm))
 
 
 def _seen_from(points: np.ndarray, frame: ToFFrame) -> tuple[np.ndarray, np.ndarray]:
     """Where ``frame`` sees the base-frame ``points`` (H, W, 3, mm): its nearest pixel's flat
     index and whether that pixel sees the same surface (in view, not occluded)."""
-    pose = np.asarray(frame.pose, np.float64)
     k = frame.intrinsics
-    local = (points - 1000.0 * pose[:3, 3]) @ pose[:3, :3]
+    local = transform_points(invert_pose(pose_m_to_mm(frame.pose)), points)
     with np.errstate(invalid="ignore", divide="ignore"):
         uv = np.rint(k.project(local))
     ok = np.isfinite(uv).all(axis=-1) & (local[..., 2] > 0)
