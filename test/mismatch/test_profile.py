@@ -301,6 +301,35 @@ def test_a_profile_effect_winning_a_scene_round_joins_the_profile(sweep, problem
     assert plain.greedy(["lens_scatter", "hand_eye", "wiggling"], 1) == ["wiggling"]
 
 
+def test_the_camera_profile_does_not_raise_the_scene_rounds_threshold(sweep, problem_of,
+                                                                      monkeypatch):
+    """The later rounds' threshold (MIN_SCORE_LATER, 20) applies once a scene effect is named,
+    not after the camera's profile: a first scene effect of 17 mnats/px (above MIN_SCORE, 15)
+    is named after a profile round, a second one of the same score is not. Canned fits make
+    the ranking known."""
+    from tof_mpd_ros.mismatch import analysis
+    from tof_mpd_ros.mismatch.features import all_descriptors
+
+    frames = sweep({})
+    problem = problem_of(frames, NOMINAL)
+    scores = {"wiggling": 40.0, "hand_eye": 17.0, "time_offset": 17.0}
+
+    def canned(p, name, box=None):
+        return FitResult(name, p.base, {}, 1, score=scores[name], t_stat=10.0)
+
+    monkeypatch.setattr(analysis, "fit_effect", canned)
+    descriptors = all_descriptors(problem.predictors, [p.motion for p in problem.predictors])
+    search = analysis._Search(problem, descriptors, {}, 15.0, 3.0, None)
+    assert search.greedy(["wiggling"], 1, profile=True) == ["wiggling"]
+    assert search.named == []
+    assert search.greedy(["hand_eye", "time_offset"], 2) == ["hand_eye"]
+    assert search.named == ["hand_eye"] and search.taken == ["wiggling", "hand_eye"]
+    # the profile's take counted as a name, the first scene effect would have been left too
+    plain = analysis._Search(problem, descriptors, {}, 15.0, 3.0, None)
+    assert plain.greedy(["wiggling"], 1) == ["wiggling"]
+    assert plain.greedy(["hand_eye", "time_offset"], 2) == []
+
+
 def test_a_profile_value_at_the_edge_of_its_range_is_reported(sweep, problem_of):
     """A camera's own value does not sit at a search limit: a profile whose wiggle ended at
     20 mm (the top of its range) is reported as standing in for something the model lacks;
