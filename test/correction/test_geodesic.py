@@ -146,11 +146,20 @@ def test_constant_stays_constant_and_ramp_is_preserved():
     np.testing.assert_allclose(out[6:-6, 6:-6], ramp[6:-6, 6:-6], atol=1e-3)
 
 
-def test_filter_is_the_weighted_mean_of_the_listed_neighbours():
+@pytest.mark.parametrize("shape,density,open_share", [((15, 18), 0.1, (0.0, 0.05)),
+                                                     ((40, 50), 0.002, (0.3, 1.0))])
+def test_filter_is_the_weighted_mean_of_the_listed_neighbours(shape, density, open_share):
+    """Dense edges (every pixel searched) and sparse ones (most pixels take the open template,
+    whose means are one correlation of the frame): both are the weighted mean of the
+    neighbour lists."""
+    from tof_mpd_ros.correction import geodesic
+
     rng = np.random.default_rng(5)
-    r = (300 + 20 * rng.random((15, 18))).astype(np.float32)
+    r = (300 + 20 * rng.random(shape)).astype(np.float32)
     r[3, 4] = np.nan
-    edges = rng.random(r.shape) < 0.1
+    edges = rng.random(r.shape) < density
+    graph, _ = geodesic._prepare(edges, np.isfinite(r), 81, 1.0, None)
+    assert open_share[0] <= graph.tmpl_ok.mean() <= open_share[1]
     idx, dist = geodesic_neighbours(edges, np.isfinite(r), k=81, step=1.0)
     w = np.where(idx >= 0, np.exp(-dist.astype(np.float64) ** 2 / (2 * 2.0**2)), 0.0)
     expected = (w * np.where(idx >= 0, r.ravel()[idx], 0.0)).sum(1) / w.sum(1)

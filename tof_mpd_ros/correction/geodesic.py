@@ -32,12 +32,13 @@ precomputed table; Dijkstra then runs on a bucket queue over those ranks (O(1) p
 floating-point ties). Within one distance, pixels are ordered by flat index, so results are
 deterministic and tie-exact. Pixels whose template footprint (the K nearest offsets on an open
 grid) holds no edge, missing pixel or image border take that template instead of a search
-(provably the same list; ~60 % of a typical frame). Pixels near the image border whose
-footprint is cut by the border use a *border template* instead: the K nearest in-image offsets
-for their clipped distances to the four borders (one precomputed list per border class, cached
-per image size), valid by the same argument since a rectangle keeps octile distances (another
-~10 % of a frame, a quarter of the searches). Written in numba because neither scipy nor
-OpenCV offers a K-nearest geodesic search on a pixel grid with early stop
+(provably the same list; ~60 % of a typical frame), and their weighted means are one
+correlation of the frame with that template's kernel (``cv2.filter2D``). Pixels near the image
+border whose footprint is cut by the border use a *border template* instead: the K nearest
+in-image offsets for their clipped distances to the four borders (one precomputed list per
+border class, cached per image size), valid by the same argument since a rectangle keeps octile
+distances (another ~10 % of a frame, a quarter of the searches). Written in numba because
+neither scipy nor OpenCV offers a K-nearest geodesic search on a pixel grid with early stop
 (``scipy.sparse.csgraph.dijkstra`` computes whole rows; the tests use it as the reference).
 Kernels run in parallel over image rows (strided, since edges cluster), with work arrays
 allocated once per worker chunk, never per pixel: serial GIL-free numba kernels on
@@ -55,6 +56,7 @@ import math
 import threading
 from typing import NamedTuple
 
+import cv2
 import numba
 import numpy as np
 
@@ -429,12 +431,13 @@ def _knn_all(first, stride, n_chunks, g, out_idx, out_rank):  # pragma: no cover
 
 
 @numba.njit(cache=True, nogil=True)
-def _filter_all(first, stride, n_chunks, g, values, weight_of_rank, skip,
+def _filter_all(first, stride, n_chunks, g, values, weight_of_rank, skip, open_mean,
                 out):  # pragma: no cover
     """Fused search + weighted mean: out[p] = Σ w R / Σ w over p's K nearest, NaN if none
-    (chunks ``first, first + stride, ...`` as :func:`_knn_all`)."""
+    (chunks ``first, first + stride, ...`` as :func:`_knn_all`); a pixel whose open template
+    applies takes ``open_mean`` (that template's mean, :func:`_open_template_mean`)."""
     h, w, k = g.h, g.w, g.k
-    tmpl_ok, tmpl_off, tmpl_rank = g.tmpl_ok, g.tmpl_off, g.tmpl_rank
+    tmpl_ok = g.tmpl_ok
     cls_off, cls_rank = g.cls_off, g.cls_rank
     for c in range(first, n_chunks, stride):
         work = _search_work(g)   # once per chunk, never per pixel
@@ -448,11 +451,7 @@ def _filter_all(first, stride, n_chunks, g, values, weight_of_rank, skip,
                 num = 0.0
                 den = 0.0
                 if tmpl_ok[p]:
-                    for i in range(k):
-                        wgt = weight_of_rank[tmpl_rank[i]]
-                        num += wgt * values[p + tmpl_off[i]]
-                        den += wgt
-                    out[p] = num / den
+                    out[p] = open_mean[p]
                     continue
                 cls = _border_class(p, g)
                 if cls >= 0:
@@ -541,6 +540,34 @@ def geodesic_neighbours(edges: np.ndarray, valid: np.ndarray, *, k: int = 81, st
     return idx, lengths[rank]
 
 
+def _open_template_mean(values: np.ndarray, k: int, max_steps: float,
+                        weight_of_rank: np.ndarray) -> np.ndarray:
+    """The filter's output at every pixel whose open template applies, as one correlation.
+
+    Where the template's footprint is clear (``Graph.tmpl_ok``), a pixel's K nearest are the
+    template's offsets at their octile distances, so its weighted mean is a fixed kernel
+    applied there: one ``cv2.filter2D`` over the frame instead of K gathers per pixel (most of
+    a frame's pixels, and most of the filter's time before). Elsewhere the result is not read.
+
+    Args:
+        values: (H, W) float64 R_F in mm, 0 where missing.
+        k, max_steps: the search's K and limit in steps (select the template).
+        weight_of_rank: (n_ranks,) float64 weight of each distance rank.
+
+    Returns:
+        (H, W) float64 weighted means in mm (meaningful only where the template applies).
+    """
+    _off, rank, dy, dx, usable = _template_for(int(k), values.shape[1], max_steps)
+    if not usable:                    # the template is never used: nothing to compute
+        return values
+    r = int(max(np.abs(dy).max(), np.abs(dx).max()))
+    kernel = np.zeros((2 * r + 1, 2 * r + 1), np.float64)
+    kernel[dy + r, dx + r] = weight_of_rank[rank]
+    kernel /= kernel.sum()
+    return cv2.filter2D(values, cv2.CV_64F, kernel, anchor=(r, r),
+                        borderType=cv2.BORDER_CONSTANT)
+
+
 def _snap_edge_pixels(filtered: np.ndarray, range_mm: np.ndarray, edges: np.ndarray,
                       fill_missing: bool) -> np.ndarray:
     """Give each edge pixel the filtered value of its most similar non-edge 8-neighbour.
@@ -607,8 +634,11 @@ def geodesic_filter(range_mm: np.ndarray, edges: np.ndarray, *, k: int = 81, sig
     weight_of_rank = np.exp(-(d * d) / (2.0 * sigma * sigma))
     # Edge pixels are snapped afterwards; missing ones are only filled on request.
     skip = e | ~valid if not fill_missing else e
+    max_steps = DEFAULT_MAX_STEPS if max_distance is None else max_distance / step
+    open_mean = _open_template_mean(values.reshape(r.shape), k, float(max_steps),
+                                    weight_of_rank)
     out = np.empty(r.size, np.float64)
     _run_chunks(_filter_all, _n_chunks(r.shape[0]), graph, values, weight_of_rank,
-                skip.ravel(), out)
+                skip.ravel(), open_mean.ravel(), out)
     filtered = out.reshape(r.shape)
     return _snap_edge_pixels(filtered, r, e, fill_missing)
