@@ -398,7 +398,8 @@ class _Search:
         profile effect not significant in the profile's own rounds) joins the profile
         (``joined``, refitted from then on) instead of being named, and does not count.
         ``profile``: the takes are the camera's profile, which does not raise the threshold
-        of later rounds (``MIN_SCORE_LATER``)."""
+        of later rounds (``MIN_SCORE_LATER``); any other take does (when monitoring, a changed
+        profile effect too: nothing is refitted there)."""
         boxes = boxes or {}
         taken: list[str] = []
         used: list[str] = []
