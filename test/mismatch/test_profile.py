@@ -271,25 +271,31 @@ def test_interreflection_beyond_any_plausible_albedo_is_named(sweep):
     assert "albedo_scale" not in result.profile_facts
 
 
-def test_a_profile_effect_winning_a_scene_round_joins_the_profile(sweep, problem_of,
-                                                                  monkeypatch):
-    """A camera effect that was not significant in the profile's own rounds competes again in
-    the scene rounds (the one-shot workflow): if it wins one, it joins the profile (refitted
-    beside every later candidate) instead of being named, and the scene's limit of effects
-    still allows one named effect. Canned fits make the ranking known."""
+def _canned_searches(sweep, problem_of, monkeypatch, scores: dict[str, float]):
+    """A maker of fresh greedy searches (MIN_SCORE 15, MIN_T 3) on a nominal sweep whose
+    candidates' fits are canned at ``scores`` (t 10), so that the ranking is known."""
     from tof_mpd_ros.mismatch import analysis
     from tof_mpd_ros.mismatch.features import all_descriptors
 
-    frames = sweep({})
-    problem = problem_of(frames, NOMINAL)
-    scores = {"wiggling": 40.0, "lens_scatter": 30.0, "hand_eye": 12.0}
+    problem = problem_of(sweep({}), NOMINAL)
 
     def canned(p, name, box=None):
         return FitResult(name, p.base, {}, 1, score=scores[name], t_stat=10.0)
 
     monkeypatch.setattr(analysis, "fit_effect", canned)
     descriptors = all_descriptors(problem.predictors, [p.motion for p in problem.predictors])
-    search = analysis._Search(problem, descriptors, {}, 15.0, 3.0, None)
+    return lambda: analysis._Search(problem, descriptors, {}, 15.0, 3.0, None)
+
+
+def test_a_profile_effect_winning_a_scene_round_joins_the_profile(sweep, problem_of,
+                                                                  monkeypatch):
+    """A camera effect that was not significant in the profile's own rounds competes again in
+    the scene rounds (the one-shot workflow): if it wins one, it joins the profile (refitted
+    beside every later candidate) instead of being named, and the scene's limit of effects
+    still allows one named effect. Canned fits make the ranking known."""
+    new_search = _canned_searches(sweep, problem_of, monkeypatch,
+                                  {"wiggling": 40.0, "lens_scatter": 30.0, "hand_eye": 12.0})
+    search = new_search()
     taken = search.greedy(["lens_scatter", "hand_eye", "wiggling"], 1, rejoin=["wiggling"])
     assert search.joined == ["wiggling"] and search.refit == ["wiggling"]
     assert taken == ["lens_scatter"] and search.taken == ["wiggling", "lens_scatter"]
@@ -297,7 +303,7 @@ def test_a_profile_effect_winning_a_scene_round_joins_the_profile(sweep, problem
     # threshold); the limit of one named effect ended the search
     assert [rnd[0].effect for rnd in search.rounds] == ["wiggling", "lens_scatter"]
     # without the rejoin, the wiggle would have been named
-    plain = analysis._Search(problem, descriptors, {}, 15.0, 3.0, None)
+    plain = new_search()
     assert plain.greedy(["lens_scatter", "hand_eye", "wiggling"], 1) == ["wiggling"]
 
 
@@ -307,25 +313,15 @@ def test_the_camera_profile_does_not_raise_the_scene_rounds_threshold(sweep, pro
     not after the camera's profile: a first scene effect of 17 mnats/px (above MIN_SCORE, 15)
     is named after a profile round, a second one of the same score is not. Canned fits make
     the ranking known."""
-    from tof_mpd_ros.mismatch import analysis
-    from tof_mpd_ros.mismatch.features import all_descriptors
-
-    frames = sweep({})
-    problem = problem_of(frames, NOMINAL)
-    scores = {"wiggling": 40.0, "hand_eye": 17.0, "time_offset": 17.0}
-
-    def canned(p, name, box=None):
-        return FitResult(name, p.base, {}, 1, score=scores[name], t_stat=10.0)
-
-    monkeypatch.setattr(analysis, "fit_effect", canned)
-    descriptors = all_descriptors(problem.predictors, [p.motion for p in problem.predictors])
-    search = analysis._Search(problem, descriptors, {}, 15.0, 3.0, None)
+    new_search = _canned_searches(sweep, problem_of, monkeypatch,
+                                  {"wiggling": 40.0, "hand_eye": 17.0, "time_offset": 17.0})
+    search = new_search()
     assert search.greedy(["wiggling"], 1, profile=True) == ["wiggling"]
     assert search.named == []
     assert search.greedy(["hand_eye", "time_offset"], 2) == ["hand_eye"]
     assert search.named == ["hand_eye"] and search.taken == ["wiggling", "hand_eye"]
     # the profile's take counted as a name, the first scene effect would have been left too
-    plain = analysis._Search(problem, descriptors, {}, 15.0, 3.0, None)
+    plain = new_search()
     assert plain.greedy(["wiggling"], 1) == ["wiggling"]
     assert plain.greedy(["hand_eye", "time_offset"], 2) == []
 
