@@ -468,6 +468,21 @@ def _filter_all(first, stride, n_chunks, g, values, weight_of_rank, skip, open_m
                 out[p] = num / den if den > 0.0 else np.nan
 
 
+def _max_steps(step: float, max_distance: float | None) -> float:
+    """The search limit in steps (``max_distance / step``; None: ``DEFAULT_MAX_STEPS``).
+
+    Raises:
+        InputError: a step that is not finite and > 0, or a limit outside [1, 1024] steps.
+    """
+    if not (np.isfinite(step) and step > 0):
+        raise InputError(f"step: expected a finite value > 0, got {step!r}")
+    max_steps = DEFAULT_MAX_STEPS if max_distance is None else max_distance / step
+    if not (np.isfinite(max_steps) and 1.0 <= max_steps <= 1024.0):
+        raise InputError(f"max_distance: expected between step and 1024 * step, got "
+                         f"{max_distance!r} (step {step})")
+    return float(max_steps)
+
+
 def _prepare(edges: np.ndarray, valid: np.ndarray, k: int, step: float,
              max_distance: float | None) -> tuple[Graph, np.ndarray]:
     """Validate and build the kernels' :class:`Graph`; also return each rank's length (steps)."""
@@ -476,12 +491,7 @@ def _prepare(edges: np.ndarray, valid: np.ndarray, k: int, step: float,
     check_same_shape(edges=e, valid=v)
     if not (isinstance(k, (int, np.integer)) and k >= 1):
         raise InputError(f"k: expected an integer >= 1, got {k!r}")
-    if not (np.isfinite(step) and step > 0):
-        raise InputError(f"step: expected a finite value > 0, got {step!r}")
-    max_steps = DEFAULT_MAX_STEPS if max_distance is None else max_distance / step
-    if not (np.isfinite(max_steps) and 1.0 <= max_steps <= 1024.0):
-        raise InputError(f"max_distance: expected between step and 1024 * step, got "
-                         f"{max_distance!r} (step {step})")
+    max_steps = _max_steps(step, max_distance)
     h, w = e.shape
     edge = e.astype(bool)
     ok = v.astype(bool)
@@ -634,8 +644,7 @@ def geodesic_filter(range_mm: np.ndarray, edges: np.ndarray, *, k: int = 81, sig
     weight_of_rank = np.exp(-(d * d) / (2.0 * sigma * sigma))
     # Edge pixels are snapped afterwards; missing ones are only filled on request.
     skip = e | ~valid if not fill_missing else e
-    max_steps = DEFAULT_MAX_STEPS if max_distance is None else max_distance / step
-    open_mean = _open_template_mean(values.reshape(r.shape), k, float(max_steps),
+    open_mean = _open_template_mean(values.reshape(r.shape), k, _max_steps(step, max_distance),
                                     weight_of_rank)
     out = np.empty(r.size, np.float64)
     _run_chunks(_filter_all, _n_chunks(r.shape[0]), graph, values, weight_of_rank,
