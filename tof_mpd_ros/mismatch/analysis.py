@@ -29,6 +29,7 @@ from .fit import (
     camera_moves,
     fit_effect,
     free_params,
+    joint_fit,
     plain_params,
     score_fit,
 )
@@ -342,6 +343,7 @@ def _camera_first(search: _Search, candidates: Sequence[str]) -> tuple[list[str]
     # the camera's level stays a free profile parameter while physics is named on top
     search.problem = search.problem.judged(free_level=True)
     search.refit = profile
+    search.converge_profile()
     # what the camera has its own value of within a window (the scene's albedo, known only
     # within the grey world's doubt, sets the interreflection's strength; the lens its blur)
     # is part of the profile; left in the residual, other effects would absorb it. Fitted
@@ -350,6 +352,7 @@ def _camera_first(search: _Search, candidates: Sequence[str]) -> tuple[list[str]
     search.profile_boxes = {c: window_box(c) for c in own}
     profile += search.greedy(own, len(own), boxes=search.profile_boxes, profile=True)
     search.refit = profile
+    search.converge_profile()
     return profile, [c for c in candidates if c not in PROFILE_EFFECTS]
 
 
@@ -600,10 +603,11 @@ class _Search:
         offset of a warm-up drift, a range-dependent share of interreflection, a wiggle that
         stood in for a lens's halo) goes back to it.
 
-        Coordinate descent: the profile, then the candidate again, in sweeps until a sweep
-        gains less than ``REFIT_TOL`` per training pixel (at most ``REFIT_SWEEPS``). One sweep
-        is not enough where the profile and the candidate trade the same smooth residual: a
-        halo's fraction then climbs a little each sweep (measured: 0.016 → 0.024 over six).
+        Descent (:meth:`_sweep`): the profile and the candidate fitted jointly with the noise
+        law held, then the noise law, in sweeps until one gains less than ``REFIT_TOL`` per
+        training pixel (at most ``REFIT_SWEEPS``). Fitted one at a time, effects that trade the
+        same smooth residual creep along their shared valley (a halo's fraction climbed 0.016
+        → 0.024 over six sweeps; session 27: a multipath gain stopped at 0.49 of a true 0.13).
         In the one-shot workflow a second descent starts with the profile back at its values
         before it was fitted (:meth:`_restart`); of the two ends, the better held-out score is
         kept."""
@@ -629,7 +633,7 @@ class _Search:
                  ) -> tuple[ToFConfig, float] | None:
         """The candidate's second descent, in the other order: the profile put back to its
         values before it was fitted (``profile_start``), ``effect`` fitted there, then the same
-        coordinate descent. The profile was fitted before any scene physics, so it has already
+        descent. The profile was fitted before any scene physics, so it has already
         absorbed what it could of it (a halo of 0.086 over 37 px became a −4 mm offset and a
         wiggle, and a descent from there found a halo of 0.007: session 18); started from the
         camera's given values (the nominal cell's, one-shot), the candidate takes its own share
@@ -645,16 +649,14 @@ class _Search:
             return None
         return self._descend(fitted.config, effect, box)
 
-    def _descend(self, config: ToFConfig, effect: str,
+    def _descend(self, config: ToFConfig, effect: str | None,
                  box: Sequence[tuple[float, float]] | None) -> tuple[ToFConfig, float]:
-        """Coordinate descent from ``config`` (:meth:`_sweep`s while one gains at least
-        ``REFIT_TOL`` per training pixel, at most ``REFIT_SWEEPS``): the model reached and its
-        training cost."""
+        """Descent from ``config`` (:meth:`_sweep`s while one gains at least ``REFIT_TOL`` per
+        training pixel, at most ``REFIT_SWEEPS``): the model reached and its training cost.
+        ``effect`` None: the profile alone."""
         cost = self._train_cost(config)
         for _ in range(REFIT_SWEEPS):
             swept = self._sweep(config, effect, box)
-            if swept is config:
-                break
             swept_cost = self._train_cost(swept)
             if swept_cost > cost - REFIT_TOL:
                 if swept_cost < cost:
@@ -663,21 +665,29 @@ class _Search:
             config, cost = swept, swept_cost
         return config, cost
 
-    def _sweep(self, config: ToFConfig, effect: str,
+    def _sweep(self, config: ToFConfig, effect: str | None,
                box: Sequence[tuple[float, float]] | None) -> ToFConfig:
-        """One coordinate-descent sweep: each profile effect refitted on ``config``, then
-        ``effect`` (searched in ``box``). Returns ``config`` itself when nothing improved."""
-        start = config
-        for name in self.refit:
-            if name == effect:
-                continue
-            q = fit_effect(_rebased(self.problem, config), name, box=self.profile_boxes.get(name))
+        """One sweep: the profile and ``effect`` (searched in ``box``) fitted jointly with the
+        noise law held (:func:`.fit.joint_fit`), then the noise law on that. Returns
+        ``config`` itself when nothing improved."""
+        jointly = [e for e in dict.fromkeys([*self.refit, *([effect] if effect else [])])
+                   if e != "noise_model"]
+        boxes = {**self.profile_boxes, **({effect: box} if effect else {})}
+        fitted = joint_fit(_rebased(self.problem, config), jointly, boxes)
+        if "noise_model" in self.refit or effect == "noise_model":
+            q = fit_effect(_rebased(self.problem, fitted), "noise_model",
+                           box=box if effect == "noise_model" else None)
             if not q.note and q.train_gain > 0:
-                config = q.config
-        if config is start:  # the profile did not move: the candidate stays where it was
-            return start
-        q = fit_effect(_rebased(self.problem, config), effect, box=box)
-        return q.config if not q.note and q.train_gain > 0 else config
+                fitted = q.config
+        return fitted
+
+    def converge_profile(self) -> None:
+        """The current model with its profile effects refined jointly (:meth:`_descend`): fitted
+        one at a time, they stop short of their joint optimum where they trade the same smooth
+        residual, and every later candidate would be scored on what the profile alone still
+        gains."""
+        if self.refit:
+            self._rebase(self._descend(self.problem.base, None, None)[0])
 
     def _train_cost(self, config: ToFConfig) -> float:
         """Mean cost per training pixel of ``config`` (nats)."""
