@@ -79,8 +79,9 @@ NESTED: dict[str, tuple[str, Callable[[dict[str, float]], bool]]] = {
                    lambda p: p.get("fraction", 0.0) * p.get("delay_mm", 0.0)
                    < SUBSURFACE_MIN_SHIFT_MM),
 }
-#: the profile's refit beside a candidate: coordinate-descent sweeps until one gains less than
-#: REFIT_TOL nats per training pixel (1 mnat/px, a fifteenth of MIN_SCORE), at most REFIT_SWEEPS
+#: the profile's refit beside a candidate: sweeps (the profile and the candidate jointly, then
+#: the noise law) until one gains less than REFIT_TOL nats per training pixel (1 mnat/px, a
+#: fifteenth of MIN_SCORE), at most REFIT_SWEEPS
 REFIT_SWEEPS = 4
 REFIT_TOL = 1e-3
 #: "interior" metrics leave out pixels this close to a depth edge (px), where flying pixels and
