@@ -556,30 +556,34 @@ def joint_fit(problem: Problem, effects: Sequence[str],
     Periodic parameters (phases) are searched unbounded and wrapped."""
     base = problem.base
     boxes = boxes or {}
-    params: list[tuple[str, FreeParam]] = [(e, p) for e in effects for p in free_params(e)]
-    if not params:
+    fitted_effects = [e for e in effects if free_params(e)]
+    if not fitted_effects:
         return base
+    params: list[FreeParam] = []
     lo, hi, u0 = [], [], []
-    for effect, p in params:
+    for effect in fitted_effects:
         current = base.params(effect)
         if not base.enabled(effect):
             current.update(NEUTRAL.get(effect, {}))
-        box = boxes.get(effect)
-        b = (0.0, 1.0) if box is None else box[free_params(effect).index(p)]
-        lo.append(-np.inf if p.periodic else float(b[0]))
-        hi.append(np.inf if p.periodic else float(b[1]))
-        u0.append(p.unit(current[p.name]))
+        own = free_params(effect)
+        box = boxes.get(effect) or [(0.0, 1.0)] * len(own)
+        for p, (b_lo, b_hi) in zip(own, box, strict=True):
+            params.append(p)
+            lo.append(-np.inf if p.periodic else float(b_lo))
+            hi.append(np.inf if p.periodic else float(b_hi))
+            u0.append(p.unit(current[p.name]))
     lo_a, hi_a = np.array(lo), np.array(hi)
+    periodic = np.array([p.periodic for p in params])
     # strictly inside the box (the trust region's requirement): a start on a bound moves off it
     x0 = np.clip(np.array(u0), np.where(np.isfinite(lo_a), lo_a + 1e-9, -np.inf),
                  np.where(np.isfinite(hi_a), hi_a - 1e-9, np.inf))
+    ends = np.cumsum([0] + [len(free_params(e)) for e in fitted_effects])
 
     def assemble(u: np.ndarray) -> ToFConfig:
+        u = np.where(periodic, u % 1.0, u)
         config = base
-        for effect in dict.fromkeys(e for e, _ in params):
-            vals = {p.name: p.value(x % 1.0 if p.periodic else x)
-                    for (e, p), x in zip(params, u, strict=True) if e == effect}
-            config = config.with_effect(effect, enabled=True, **vals)
+        for effect, a, b in zip(fitted_effects, ends[:-1], ends[1:], strict=True):
+            config = with_params(config, effect, u[a:b])
         return config
 
     frames = problem.frames_of("train")
