@@ -134,3 +134,43 @@ def test_a_halo_below_the_score_is_named_a_misfit_of_the_same_score_is_not(sweep
     assert control.selected == [], control.concentration
     assert spurious.score > 0.8 * halo.score
     assert not control.concentration["1:lens_scatter"]["explained"]
+
+
+def test_a_multipath_gain_is_named_only_where_it_explains_its_own_place(monkeypatch):
+    """Named as physics, a gain of interreflection must explain the held-out residual where its
+    own correction is large (concave corners, objects meeting the table), as a concentrated
+    effect must: one that leaves most of it there bends to a misfit elsewhere and is reported
+    as ``"signature"`` with the share it leaves. The camera's window (boxed) is the profile's
+    and not judged so, nor are other effects; fewer than three groups are no evidence.
+    (Canned group levels; the blind cases behind the rule: session 28 in docs/mismatch.md.)"""
+    from tof_mpd_ros.mismatch import analysis
+    from tof_mpd_ros.mismatch.concentration import SIGNATURE_EFFECTS
+    from tof_mpd_ros.mismatch.wording import phrase
+
+    se = (0.5, 0.5, 0.5, 0.5)
+    explains = GroupLevels((3.0, 2.0, 2.5, 1.5), (0.3, 0.2, 0.1, 0.4), se, (2.8, 1.9, 2.4, 1.0),
+                           400)
+    bends = GroupLevels((3.0, 2.0, 2.5, 1.5), (2.2, 1.6, 1.8, 1.5), se, (0.8, 0.4, 0.7, 0.0),
+                        400)
+    few = GroupLevels((3.0, 2.0), (3.0, 2.0), (0.5, 0.5), (0.1, 0.1), 100)
+    gain = FitResult("multipath", ToFConfig.nominal(), {"gain": 3.0}, 1, score=40.0)
+    search = _Search(None, [], {}, MIN_SCORE, 3.0, None)  # type: ignore[arg-type]
+    for levels, holds in ((explains, True), (bends, False), (few, True)):
+        monkeypatch.setattr(analysis, "group_levels", lambda p, c, found=levels: found)
+        assert search._signature_holds(gain, 6, boxed=()) is holds
+        assert search.concentration["7:multipath"]["share_left"] == round(levels.share_left, 3)
+    assert [u["case"] for u in search.unexplained] == ["signature"]
+    why = search.unexplained[0]["why"]
+    assert f"{100 * bends.share_left:.0f} %" in why and "4 groups" in why
+    assert phrase("unexplained_why", {"case": "signature", "share_left": 0.823,
+                                      "groups": 21}).count("82 %") == 1
+    monkeypatch.setattr(analysis, "group_levels", lambda p, c: bends)
+    assert search._signature_holds(gain, 6, boxed={"multipath"})
+    assert search._signature_holds(FitResult("hand_eye", ToFConfig.nominal(), {}, 6,
+                                             score=40.0), 6, boxed=())
+    assert SIGNATURE_EFFECTS == ("multipath",)
+    # a multipath gain that explains its place is no rival of a concentrated candidate
+    search.concentration = {"7:multipath": {"explained": True, "rival": True},
+                            "7:hand_eye": {"explained": True, "rival": True}}
+    assert search._by_concentration(FitResult("hand_eye", ToFConfig.nominal(), {}, 6,
+                                              score=5.0), 6)

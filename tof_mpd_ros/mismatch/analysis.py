@@ -19,7 +19,12 @@ from scipy import stats
 from ..errors import MismatchError
 from ..frame import ToFFrame
 from ..sim.tof import ToFConfig
-from .concentration import CONCENTRATED_EFFECTS, group_levels
+from .concentration import (
+    CONCENTRATED_EFFECTS,
+    MIN_GROUPS,
+    SIGNATURE_EFFECTS,
+    group_levels,
+)
 from .data import camera_motion, check_frames, split_frames
 from .features import DESCRIPTORS, all_descriptors, edge_jump_mm
 from .fit import (
@@ -115,13 +120,15 @@ class Analysis:
         profile_words: the camera's profile in words, relative to the nominal cell.
         unexplained: candidates that fitted best but are not taken, with why (``case``: a
             parameter at the ``"edge"`` of its range, the model does not explain this; a fit
-            inside the ``"camera_window"``; a halo as wide as the frame, a ``"veil"``), and
-            profile effects that ended at the edge of their range (``"profile_edge"``), each
-            with where the residual sits.
+            inside the ``"camera_window"``; a halo as wide as the frame, a ``"veil"``; a gain
+            of interreflection that does not explain the residual where its own correction
+            is large, ``"signature"``), and profile effects that ended at the edge of their
+            range (``"profile_edge"``), each with where the residual sits.
         frame_levels: "round:effect" -> the held-out frames' residual levels before and after
             a candidate of one offset per frame, judged on them (:mod:`.frame_levels`).
         concentration: "round:effect" -> the held-out residual where a concentrated
-            candidate's correction is large, before and after it (:mod:`.concentration`).
+            candidate's (or a ``SIGNATURE_EFFECTS`` one's) correction is large, before and
+            after it (:mod:`.concentration`).
     """
 
     selected: list[str]
@@ -477,13 +484,33 @@ class _Search:
                 self._unexplain("veil", r.effect, k + 1, r.score, **veil)
                 continue
             edge = parameters_at_edge(r)
-            if not edge:
-                return r
-            inner = self._away_from_edge(r, edge)
-            if inner is not None:
-                return inner
-            self._unexplain("edge", r.effect, k + 1, r.score, edge)
+            chosen = self._away_from_edge(r, edge) if edge else r
+            if chosen is None:
+                self._unexplain("edge", r.effect, k + 1, r.score, edge)
+            elif self._signature_holds(chosen, k, boxed):
+                return chosen
         return None
+
+    def _signature_holds(self, r: FitResult, k: int, boxed: Collection[str]) -> bool:
+        """Whether ``r``, if an effect of ``SIGNATURE_EFFECTS`` named as physics (not the
+        camera's window, ``boxed``), explains the held-out residual where its own correction
+        is large (:mod:`.concentration`'s test). A gain of interreflection acts most at
+        concave corners and where objects meet the table; one that leaves most of the
+        residual there is bending to a misfit elsewhere — glossy or metal parts, which a
+        Lambertian model cannot light, want a far larger gain than the diffuse surfaces
+        around them — and is reported as ``"signature"``, not named (issue 13, item 2).
+        Without ``MIN_GROUPS`` groups there is no evidence of where it acts: it holds."""
+        if r.effect not in SIGNATURE_EFFECTS or r.effect in boxed:
+            return True
+        levels = group_levels(self.problem, r.config)
+        if levels is None:
+            return True
+        found = self.concentration[f"{k + 1}:{r.effect}"] = levels.as_dict()
+        if found["groups"] < MIN_GROUPS or found["explained"]:
+            return True
+        self._unexplain("signature", r.effect, k + 1, r.score, share_left=found["share_left"],
+                        groups=found["groups"])
+        return False
 
     def _unexplain(self, case: str, effect: str, round_: int | None, score: float | None,
                    edge: dict[str, float] | None = None, **why: Any) -> None:
@@ -530,7 +557,8 @@ class _Search:
         if not (found and found["explained"] and r.score > 0):
             return False
         return not any(v["rival"] for key, v in self.concentration.items()
-                       if key.startswith(f"{k + 1}:") and key != f"{k + 1}:{r.effect}")
+                       if key.startswith(f"{k + 1}:") and key != f"{k + 1}:{r.effect}"
+                       and key.split(":", 1)[1] in CONCENTRATED_EFFECTS)
 
     def confirm(self, profile: list[str], given: ToFConfig) -> list[str]:
         """The profile effects still significant in the final model: each is put back to its
