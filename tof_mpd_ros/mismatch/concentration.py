@@ -43,9 +43,9 @@ CONCENTRATED_EFFECTS: tuple[str, ...] = ("lens_scatter", "subsurface", "mixed_pi
 #: effects of the whole scene whose correction still has a place of its own: interreflection
 #: is largest at concave corners and where objects meet the table. Named as physics, a fit
 #: of one must explain the residual there as a concentrated effect does (``MAX_CHI2_LEFT``):
-#: measured on blind cases of session 27 (docs/mismatch.md, session 28), true changes of the
-#: multipath gain left 0.02-0.21 of the groups' chi2, gains fitted to path-traced metal and
-#: glossy parts 0.49-0.82
+#: measured on already-scored blind cases (docs/mismatch.md, session 28), true changes of
+#: the multipath gain left 0.02-0.21 of the groups' chi2, gains fitted to path-traced metal
+#: and glossy parts 0.49-1.08 (one extra name passed at 0.25)
 SIGNATURE_EFFECTS: tuple[str, ...] = ("multipath",)
 #: the correction is "large" on held-out pixels where |correction| is at least this share of
 #: its 95th percentile (the percentile, not the maximum: a few edge pixels must not set it)
