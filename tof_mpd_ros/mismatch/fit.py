@@ -559,8 +559,7 @@ def joint_fit(problem: Problem, effects: Sequence[str],
     fitted_effects = [e for e in effects if free_params(e)]
     if not fitted_effects:
         return base
-    params: list[FreeParam] = []
-    lo, hi, u0 = [], [], []
+    lo, hi, u0, periodic, ends = [], [], [], [], [0]
     for effect in fitted_effects:
         current = base.params(effect)
         if not base.enabled(effect):
@@ -568,16 +567,15 @@ def joint_fit(problem: Problem, effects: Sequence[str],
         own = free_params(effect)
         box = boxes.get(effect) or [(0.0, 1.0)] * len(own)
         for p, (b_lo, b_hi) in zip(own, box, strict=True):
-            params.append(p)
             lo.append(-np.inf if p.periodic else float(b_lo))
             hi.append(np.inf if p.periodic else float(b_hi))
             u0.append(p.unit(current[p.name]))
+            periodic.append(p.periodic)
+        ends.append(ends[-1] + len(own))
     lo_a, hi_a = np.array(lo), np.array(hi)
-    periodic = np.array([p.periodic for p in params])
     # strictly inside the box (the trust region's requirement): a start on a bound moves off it
     x0 = np.clip(np.array(u0), np.where(np.isfinite(lo_a), lo_a + 1e-9, -np.inf),
                  np.where(np.isfinite(hi_a), hi_a - 1e-9, np.inf))
-    ends = np.cumsum([0] + [len(free_params(e)) for e in fitted_effects])
 
     def assemble(u: np.ndarray) -> ToFConfig:
         u = np.where(periodic, u % 1.0, u)
