@@ -112,7 +112,9 @@ class Analysis:
         sigma_before, sigma_after: (H, W) float64 predicted residual std, mm.
         workflow: ``"one-shot"`` (no config given: the camera's profile is fitted first) or
             ``"monitor"`` (a config from an earlier run: only what changed since).
-        profile: profile effects fitted in the one-shot workflow, strongest first.
+        profile: the camera's profile in the one-shot workflow: what of the camera refitted
+            beside the candidates (the profile's takes, or the whole camera,
+            :meth:`_Search.try_whole_camera`) pays in the final model; the takes first.
         profile_facts: what the recording states, the amplitude units chosen, the RMS of the
             camera's fixed pattern (``pattern_rms_mm``) and the share of the measured pixels
             left out as specular (``specular_share``, :mod:`.specular`)
@@ -279,16 +281,18 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
     profile, scene = (([], list(candidates)) if monitor
                       else _camera_first(search, candidates))
     # what the camera has but was not significant beside nothing else may be once the windows
-    # and the physics are fitted: it competes again, and joins the profile if it wins
+    # and the physics are fitted: it competes again, and joins the profile if it wins (none
+    # is left when the whole camera is refitted)
     rejoin = [] if monitor else [c for c in candidates if c in PROFILE_EFFECTS
-                                 and c not in profile]
+                                 and c not in search.refit]
     selected = search.greedy(scene + rejoin, max_effects, rejoin=rejoin) \
         if max_effects > 0 else []
-    profile = profile + search.joined
-    # interreflection beyond the albedo's doubt is named physics, no longer the profile's
-    profile = [e for e in profile if e not in selected]
-    # what the physics on top took back from the camera's profile leaves it where it was
-    profile = search.confirm(profile, base)
+    # the camera's profile is what of the camera refitted pays in the final model: a take of
+    # the profile's rounds may have given back what it held to the physics on top; with the
+    # whole camera refitted, an effect those rounds left may pay beside it. Interreflection
+    # beyond the albedo's doubt is named physics, no longer the profile's
+    profile = search.confirm([e for e in dict.fromkeys([*profile, *search.refit])
+                              if e not in selected], base)
     if not monitor and moving and "noise_model" in candidates:
         profile = search.measure_pattern(profile)
     search.flag_profile_edges(profile)
@@ -356,11 +360,12 @@ def _camera_first(search: _Search, candidates: Sequence[str]) -> tuple[list[str]
     # within the grey world's doubt, sets the interreflection's strength; the lens its blur)
     # is part of the profile; left in the residual, other effects would absorb it. Fitted
     # with the level free: interreflection lifts every range a little
-    own = [c for c in candidates if c in CAMERA_WINDOWS]
-    search.profile_boxes = {c: window_box(c) for c in own}
-    profile += search.greedy(own, len(own), boxes=search.profile_boxes, profile=True)
+    windows = [c for c in candidates if c in CAMERA_WINDOWS]
+    search.profile_boxes = {c: window_box(c) for c in windows}
+    profile += search.greedy(windows, len(windows), boxes=search.profile_boxes, profile=True)
     search.refit = profile
     search.converge_profile()
+    search.try_whole_camera([*own, *windows])
     return profile, [c for c in candidates if c not in PROFILE_EFFECTS]
 
 
@@ -561,8 +566,10 @@ class _Search:
                        and key.split(":", 1)[1] in CONCENTRATED_EFFECTS)
 
     def confirm(self, profile: list[str], given: ToFConfig) -> list[str]:
-        """The profile effects still significant in the final model: each is put back to its
-        ``given`` value and scored as a candidate again; one that no longer pays is dropped."""
+        """The effects of ``profile`` significant in the final model: each is put back to its
+        ``given`` value and scored as a candidate again; one that does not pay is dropped (and
+        stays at its given value). ``profile`` may hold effects the profile's rounds did not
+        take, refitted with the whole camera: what pays beside the physics joins it here."""
         kept = []
         for name in profile:
             current = self.problem.base
@@ -709,6 +716,33 @@ class _Search:
             if not q.note and q.train_gain > 0:
                 fitted = q.config
         return fitted
+
+    def try_whole_camera(self, whole: Sequence[str]) -> None:
+        """One-shot, after the profile's rounds: refit ``whole`` (every profile effect and
+        window, taken or not) jointly, and keep it as the profile refitted beside every later
+        candidate if that is significant on the held-out pixels over the profile taken (its
+        new parameters penalised). Why (session 29): the rounds take a camera effect only when
+        it pays by itself, and what they leave at the nominal cell's value can leave a scene
+        candidate's residual to a wrong camera (a halo needed the camera's true wiggle and
+        window gain beside it, each worth ~20 mnats/px alone; a greedy noise law at two edges
+        left 270 mnats/px that a drift could not take). Why judged: freed all at once on a
+        small sweep of the nominal cell, they overfit the training pixels (a wiggle at the
+        edge of its range balanced by an offset and an amplitude bias)."""
+        whole = list(dict.fromkeys([*self.refit, *whole]))
+        added = [e for e in whole if e not in self.refit]
+        if not added:
+            return
+        taken = self.refit
+        self.refit = whole
+        config, cost = self._descend(self.problem.base, None, None)
+        trial = score_fit(self.problem, FitResult(
+            "camera", config, {}, sum(len(free_params(e)) for e in added),
+            train_gain=self._train_cost(self.problem.base) - cost))
+        _log.info("the whole camera: score %.1f, t %.1f", trial.score, trial.t_stat)
+        if _significant(trial, self.min_score, self.min_t):
+            self._rebase(config)
+        else:
+            self.refit = taken
 
     def converge_profile(self) -> None:
         """The current model with its profile effects refined jointly (:meth:`_descend`): fitted
