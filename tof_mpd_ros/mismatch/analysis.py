@@ -278,8 +278,7 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
 
     search = _Search(problem, descriptors, location, min_score, min_t, progress,
                      units_assumed=not monitor)
-    profile, scene = (([], list(candidates)) if monitor
-                      else _camera_first(search, candidates))
+    scene = list(candidates) if monitor else _camera_first(search, candidates)
     # what the camera has but was not significant beside nothing else may be once the windows
     # and the physics are fitted: it competes again, and joins the profile if it wins (none
     # is left when the whole camera is refitted)
@@ -287,12 +286,12 @@ def analyse(frames: Sequence[ToFFrame], config: ToFConfig | None = None, *,
                                  and c not in search.refit]
     selected = search.greedy(scene + rejoin, max_effects, rejoin=rejoin) \
         if max_effects > 0 else []
-    # the camera's profile is what of the camera refitted pays in the final model: a take of
-    # the profile's rounds may have given back what it held to the physics on top; with the
-    # whole camera refitted, an effect those rounds left may pay beside it. Interreflection
-    # beyond the albedo's doubt is named physics, no longer the profile's
-    profile = search.confirm([e for e in dict.fromkeys([*profile, *search.refit])
-                              if e not in selected], base)
+    # the camera's profile is what of the camera refitted pays in the final model (``refit``
+    # holds the profile's takes first, then what joined or the rest of the whole camera): a
+    # take of the profile's rounds may have given back what it held to the physics on top;
+    # with the whole camera refitted, an effect those rounds left may pay beside it.
+    # Interreflection beyond the albedo's doubt is named physics, no longer the profile's
+    profile = search.confirm([e for e in search.refit if e not in selected], base)
     if not monitor and moving and "noise_model" in candidates:
         profile = search.measure_pattern(profile)
     search.flag_profile_edges(profile)
@@ -345,10 +344,11 @@ def build_problem(frames: Sequence[ToFFrame], base: ToFConfig,
     return problem, descriptors
 
 
-def _camera_first(search: _Search, candidates: Sequence[str]) -> tuple[list[str], list[str]]:
+def _camera_first(search: _Search, candidates: Sequence[str]) -> list[str]:
     """One-shot: name the camera's profile first (what every camera has its own values of,
     then what it has within a window), then leave the level free for the physics on top.
-    Returns the profile effects taken and the candidates left for the scene rounds."""
+    The profile's takes lead ``search.refit``. Returns the candidates left for the scene
+    rounds."""
     own = [c for c in candidates if c in PROFILE_EFFECTS]
     search.profile_start = search.problem.base
     profile = search.greedy(own, len(own), profile=True)
@@ -366,7 +366,7 @@ def _camera_first(search: _Search, candidates: Sequence[str]) -> tuple[list[str]
     search.refit = profile
     search.converge_profile()
     search.try_whole_camera([*own, *windows])
-    return profile, [c for c in candidates if c not in PROFILE_EFFECTS]
+    return [c for c in candidates if c not in PROFILE_EFFECTS]
 
 
 @dataclass
