@@ -66,6 +66,10 @@ setup(
         "tqdm>=4.66",
         "matplotlib>=3.8",
         "jinja2>=3.1",
+        # the fcn kind's U-Net on 2+ CPU threads (correction/fcn_onnx.py; torch is the
+        # fallback and the reference); onnx builds its graph from the weights
+        "onnxruntime>=1.20",
+        "onnx>=1.16",
     ],
     extras_require={
         "ros": ROS_WHEELS,

@@ -3,7 +3,9 @@
 For 180x140 and 320x240 frames, times ``pipeline.correct`` end to end for
 
 * the patch kind (calibration -> F -> G -> geodesic filter) in float32, bfloat16 and int8,
-* the fcn kind (calibration -> U-Net) in float32 and bfloat16,
+* the fcn kind (calibration -> U-Net) in float32 and bfloat16 under torch, and in float32
+  under ONNX Runtime (``fcn/float32/ort``, the default executor where onnxruntime is installed;
+  skipped, and said, where it is not),
 
 all in one run, interleaved frame by frame so that a change of machine load hits every row
 alike, and prints the median and p90 in ms, each row's ratio to the patch float32 path, the
@@ -64,14 +66,27 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_pipeline import _resize, _synthetic, cpu_peak, gemm_ceiling, machine
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
+from tof_mpd_ros.correction import fcn_onnx
 from tof_mpd_ros.correction.fcn import N_INPUTS, FCNCorrectionModel, ResidualFCN
 from tof_mpd_ros.correction.pipeline import central_window, correct
 
 PAPER_MS = 165.0
 TARGETS_MS = {"180x140": 15.0, "320x240": 33.0}
 SIZES = ((140, 180), (240, 320))
-ROWS = (("patch", "float32"), ("patch", "bfloat16"), ("patch", "int8"), ("fcn", "float32"),
-        ("fcn", "bfloat16"))
+#: (kind, precision, fcn engine); the reference of each kind is its float32 row under torch
+ROWS = (("patch", "float32", "torch"), ("patch", "bfloat16", "torch"),
+        ("patch", "int8", "torch"), ("fcn", "float32", "torch"), ("fcn", "bfloat16", "torch"),
+        ("fcn", "float32", "onnxruntime"))
+
+
+def rows() -> list[tuple[str, str, str]]:
+    """The rows this machine can run (ONNX Runtime's only where it is installed)."""
+    return [r for r in ROWS if r[2] == "torch" or fcn_onnx.available()]
+
+
+def row_name(row: tuple[str, str, str]) -> str:
+    kind, precision, engine = row
+    return f"{kind}/{precision}" + ("/ort" if engine == "onnxruntime" else "")
 
 
 def conv_flops(net: ResidualFCN, h: int, w: int) -> int:
@@ -125,41 +140,41 @@ def time_size(h: int, w: int, args: argparse.Namespace) -> dict[str, Any]:
     base = _synthetic()
     kinds = models(h, w, args)
     frames = {k: frames_for(m, base) for k, m in kinds.items()}
-    times: dict[tuple[str, str], list[float]] = {row: [] for row in ROWS}
-    for row in ROWS:                                  # warm-up: engines, oneDNN primitives
-        correct(kinds[row[0]], *frames[row[0]][0], precision=row[1])
+    times: dict[tuple[str, str, str], list[float]] = {row: [] for row in rows()}
+    for row in rows():                       # warm-up: engines, oneDNN primitives, sessions
+        correct(kinds[row[0]], *frames[row[0]][0], precision=row[1], fcn_engine=row[2])
     for i in range(args.repeats):
-        for kind, precision in ROWS:
+        for kind, precision, engine in rows():
             r, a = frames[kind][i % len(frames[kind])]
             t0 = time.perf_counter()
-            correct(kinds[kind], r, a, precision=precision)
-            times[(kind, precision)].append((time.perf_counter() - t0) * 1e3)
+            correct(kinds[kind], r, a, precision=precision, fcn_engine=engine)
+            times[(kind, precision, engine)].append((time.perf_counter() - t0) * 1e3)
     out: dict[str, Any] = {}
-    for kind, precision in ROWS:
-        ms = sorted(times[(kind, precision)])
-        out[f"{kind}/{precision}"] = {"median_ms": statistics.median(ms),
-                                      "p90_ms": ms[int(0.9 * (len(ms) - 1))]}
+    for row in rows():
+        ms = sorted(times[row])
+        out[row_name(row)] = {"median_ms": statistics.median(ms),
+                              "p90_ms": ms[int(0.9 * (len(ms) - 1))]}
     trained = trained_models(h, w, args)
     scene = scene_frames(*trained["patch"].shape, args.agreement_views)
     for kind in ("patch", "fcn"):
         model = trained[kind]
         sized = scene if model.shape == trained["patch"].shape else scene_frames(
             *model.shape, args.agreement_views)
-        reduced = [p for k, p in ROWS if k == kind and p != "float32"]
-        for precision, numbers in agreement(model, sized, reduced).items():
-            out[f"{kind}/{precision}"]["agreement"] = numbers
+        others = [r for r in rows() if r[0] == kind and r[1:] != ("float32", "torch")]
+        for row, numbers in agreement(model, sized, others).items():
+            out[row_name(row)]["agreement"] = numbers
     out["agreement_weights"] = {"patch": str(args.weights_patch or "shipped"),
                                 "fcn": str(args.weights_fcn or "untrained")}
-    for kind, precision in ROWS:
-        out[f"{kind}/{precision}"]["two_at_once_ms_per_frame"] = two_at_once(
-            kinds[kind], frames[kind], precision, args.repeats)
+    for row in rows():
+        out[row_name(row)]["two_at_once_ms_per_frame"] = two_at_once(
+            kinds[row[0]], frames[row[0]], row, args.repeats)
     out["fcn_gflop_per_frame"] = conv_flops(kinds["fcn"].net, *kinds["fcn"].shape) / 1e9
     out["frames"] = {kind: f"{m.shape[1]}x{m.shape[0]}" for kind, m in kinds.items()}
     return out
 
 
-def two_at_once(model: Any, frames: list[tuple[np.ndarray, np.ndarray]], precision: str,
-                repeats: int) -> float:
+def two_at_once(model: Any, frames: list[tuple[np.ndarray, np.ndarray]],
+                row: tuple[str, str, str], repeats: int) -> float:
     """Wall ms per frame when two threads correct ``repeats`` frames each side by side, one
     torch thread each: the corrector node's ``threads`` 1, ``parallel_frames`` 2 (its
     throughput; each frame's latency is longer)."""
@@ -168,7 +183,8 @@ def two_at_once(model: Any, frames: list[tuple[np.ndarray, np.ndarray]], precisi
 
     def run(first: int) -> None:
         for i in range(repeats):
-            correct(model, *frames[(first + i) % len(frames)], precision=precision)
+            correct(model, *frames[(first + i) % len(frames)], precision=row[1],
+                    fcn_engine=row[2])
 
     try:
         run(0)                                        # warm-up on one thread
@@ -205,21 +221,22 @@ def trained_models(h: int, w: int, args: argparse.Namespace) -> dict[str, Any]:
     return {"patch": patch, "fcn": fcn}
 
 
-def agreement(model: Any, frames: list[Any], precisions: list[str]
-              ) -> dict[str, dict[str, float]]:
-    """Per reduced precision, against float32 on ``frames`` (corrected in float32 once):
-    shares of valid pixels within 0.5 mm (final range and R_F), and the shares within 5 mm of
-    the reference in float32 and in that precision."""
-    counts = {p: np.zeros(3, np.int64) for p in precisions}     # near, near R_F, valid
-    within = {p: 0 for p in ("float32", *precisions)}
+def agreement(model: Any, frames: list[Any], others: list[tuple[str, str, str]]
+              ) -> dict[tuple[str, str, str], dict[str, float]]:
+    """Per other row (a reduced precision, or another executor), against float32 under torch
+    on ``frames`` (corrected that way once): shares of valid pixels within 0.5 mm (final range
+    and R_F), and the shares within 5 mm of the reference in float32 and in that row."""
+    counts = {p: np.zeros(3, np.int64) for p in others}     # near, near R_F, valid
+    within = {p: 0 for p in ("float32", *others)}
     scored_total = 0
     for f in frames:
-        ref = correct(model, f.range_mm, f.amplitude)
+        ref = correct(model, f.range_mm, f.amplitude, fcn_engine="torch")
         scored = np.isfinite(f.reference_mm)
         scored_total += int(scored.sum())
-        results = {"float32": ref}
-        for p in precisions:
-            low = results[p] = correct(model, f.range_mm, f.amplitude, precision=p)
+        results: dict[Any, Any] = {"float32": ref}
+        for p in others:
+            low = results[p] = correct(model, f.range_mm, f.amplitude, precision=p[1],
+                                       fcn_engine=p[2])
             ok = ref.valid & low.valid
             counts[p] += [(np.abs(ref.range_mm - low.range_mm)[ok] <= 0.5).sum(),
                           (np.abs(ref.range_f_mm - low.range_f_mm)[ok] <= 0.5).sum(), ok.sum()]
@@ -230,7 +247,7 @@ def agreement(model: Any, frames: list[Any], precisions: list[str]
     return {p: {"final_within_0.5mm": counts[p][0] / max(counts[p][2], 1),
                 "range_f_within_0.5mm": counts[p][1] / max(counts[p][2], 1),
                 "within_5mm_float32": within["float32"] / scored_total,
-                "within_5mm_reduced": within[p] / scored_total} for p in precisions}
+                "within_5mm_reduced": within[p] / scored_total} for p in others}
 
 
 def print_size(label: str, res: dict[str, Any], peak: dict[str, Any], gemm: float) -> None:
@@ -242,28 +259,33 @@ def print_size(label: str, res: dict[str, Any], peak: dict[str, Any], gemm: floa
         print(f"  NOTE: timed on the weights' own smaller frame: {smaller}")
     print(f"  {'kind/precision':<18}{'median ms':>10}{'p90 ms':>9}{'vs patch f32':>14}"
           f"{'2 at once, ms/frame':>21}")
-    for kind, precision in ROWS:
-        row = res[f"{kind}/{precision}"]
-        print(f"  {kind + '/' + precision:<18}{row['median_ms']:>10.1f}{row['p90_ms']:>9.1f}"
+    for name in map(row_name, rows()):
+        row = res[name]
+        print(f"  {name:<18}{row['median_ms']:>10.1f}{row['p90_ms']:>9.1f}"
               f"{row['median_ms'] / base:>13.2f}x{row['two_at_once_ms_per_frame']:>21.1f}")
+    if not fcn_onnx.available():
+        print("  (fcn/float32/ort not timed: onnxruntime and onnx are not installed)")
     weights = res["agreement_weights"]
     print(f"  against float32 on a simulated scene (weights: patch {weights['patch']}, fcn "
           f"{weights['fcn']}); bar: >= 99.9 % within 0.5 mm, no drop within 5 mm")
     print(f"  {'kind/precision':<18}{'final <= 0.5 mm':>16}{'R_F <= 0.5 mm':>15}"
           f"{'within 5 mm: f32 -> reduced':>30}")
-    for kind, precision in ROWS:
-        a = res[f"{kind}/{precision}"].get("agreement")
+    for name in map(row_name, rows()):
+        a = res[name].get("agreement")
         if a:
-            print(f"  {kind + '/' + precision:<18}{100 * a['final_within_0.5mm']:>14.3f} %"
+            print(f"  {name:<18}{100 * a['final_within_0.5mm']:>14.3f} %"
                   f"{100 * a['range_f_within_0.5mm']:>13.3f} %"
                   f"{100 * a['within_5mm_float32']:>19.2f} -> "
                   f"{100 * a['within_5mm_reduced']:.2f} %")
     gflop = res["fcn_gflop_per_frame"]
-    rate = gflop / (res["fcn/float32"]["median_ms"] / 1e3)
-    print(f"  fcn: {gflop:.2f} GFLOP per frame -> {rate:.1f} GFLOP/s in float32 = "
-          f"{100 * rate / peak['peak_gflops']:.0f} % of the nominal peak "
-          f"({peak['peak_gflops']} GFLOP/s), {100 * rate / gemm:.0f} % of a large GEMM now "
-          f"({gemm:.0f} GFLOP/s)")
+    for name in ("fcn/float32", "fcn/float32/ort"):
+        if name not in res:
+            continue
+        rate = gflop / (res[name]["median_ms"] / 1e3)   # the whole correct(), not the U-Net alone
+        print(f"  {name}: {gflop:.2f} GFLOP per frame -> {rate:.1f} GFLOP/s = "
+              f"{100 * rate / peak['peak_gflops']:.0f} % of the nominal float32 peak "
+              f"({peak['peak_gflops']} GFLOP/s), {100 * rate / gemm:.0f} % of a large GEMM now "
+              f"({gemm:.0f} GFLOP/s)")
 
 
 def main() -> None:

@@ -72,11 +72,12 @@ def test_onednn_linear_pointwise_is_the_fast_path_gemm() -> None:
 
 
 def test_tensor_version_counts_in_place_changes() -> None:
-    """correction/pipeline.py's fast-path engine cache keys on each parameter's
-    ``Tensor._version``, so a model whose weights change in place is rebuilt, not reused."""
+    """correction/networks.weights_version keys the patch kind's fast-path engine cache and the
+    fcn kind's ONNX Runtime sessions on each parameter's ``Tensor._version``, so a model whose
+    weights change in place is rebuilt, not reused."""
     why = _loudly("torch.Tensor._version", "torch",
-                  "tof_mpd_ros.correction.pipeline would reuse a fast-path engine built from "
-                  "weights that have since changed in place")
+                  "tof_mpd_ros.correction.pipeline and .fcn_onnx would reuse an engine or a "
+                  "session built from weights that have since changed in place")
     p = torch.nn.Parameter(torch.zeros(3))
     before = getattr(p, "_version", None)
     assert isinstance(before, int), why

@@ -55,6 +55,7 @@ from torch.nn import functional as tnf
 from ..calibration.intrinsic import IntrinsicCalibration, valid_measurement
 from ..errors import InputError
 from ..thread_pools import run_chunks
+from . import fcn_onnx
 
 #: input channels of :func:`fcn_inputs`
 N_INPUTS = 6
@@ -545,10 +546,43 @@ class FCNCorrectionModel:
         return self
 
 
+#: executors of the U-Net :func:`run_fcn` takes (``"auto"``: :func:`fcn_engine`)
+FCN_ENGINES = ("auto", "torch", "onnxruntime")
+
+
+def fcn_engine(engine: str, device: torch.device | str, precision: str) -> str:
+    """The executor ``run_fcn`` uses for ``engine`` on ``device`` in ``precision``:
+    ``"torch"`` or ``"onnxruntime"``.
+
+    ``"auto"`` takes ONNX Runtime where it can run the call (installed, the CPU, float32) on 2
+    or more threads, else torch. Why the thread count: measured side by side on 2 Zen 4 cores
+    (docs/performance.md, session 31), one frame on two threads took 15.7 against 21.1 ms at
+    180×140 and 31.5 against 37.0 at 320×240 under ONNX Runtime, but on one thread each (the
+    node's ``parallel_frames``) torch's oneDNN convolutions were as fast or faster (9.2 against
+    9.9, 22.8 against 27.2 ms per frame).
+
+    Raises:
+        InputError: an unknown ``engine``, or ``"onnxruntime"`` where it cannot run (not
+            installed, another device than the CPU, or bfloat16, which its CPU convolutions
+            do not have).
+    """
+    if engine not in FCN_ENGINES:
+        raise InputError(f"engine must be one of {FCN_ENGINES}, got {engine!r}")
+    possible = torch.device(device).type == "cpu" and precision == "float32"
+    if engine == "onnxruntime" and not (possible and fcn_onnx.available()):
+        raise InputError("engine 'onnxruntime' runs the fcn kind on the CPU in float32 only, "
+                         "with onnxruntime and onnx installed (pip install onnxruntime onnx); "
+                         f"asked for device {device!s}, precision {precision!r}")
+    if engine == "auto":
+        fast = possible and torch.get_num_threads() >= 2 and fcn_onnx.available()
+        return "onnxruntime" if fast else "torch"
+    return engine
+
+
 @torch.inference_mode()
 def run_fcn(net: ResidualFCN, calibrated_mm: np.ndarray, amplitude: np.ndarray, *,
-            device: torch.device | str = "cpu", precision: str = "float32"
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            device: torch.device | str = "cpu", precision: str = "float32",
+            engine: str = "auto") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Correction and σ of a batch of frames.
 
     Args:
@@ -558,6 +592,9 @@ def run_fcn(net: ResidualFCN, calibrated_mm: np.ndarray, amplitude: np.ndarray, 
         device: where the network runs (it is moved there).
         precision: ``"float32"`` or ``"bfloat16"`` (the convolutions under autocast; the
             output scaling and σ stay float32).
+        engine: the U-Net's executor (:func:`fcn_engine`): torch, or ONNX Runtime on
+            ``torch.get_num_threads()`` threads (:mod:`.fcn_onnx`: the same graph and weights,
+            outputs within 1e-5 mm of torch's).
 
     Returns:
         ``(correction_mm, sigma_mm, valid)``: float32 (B, H, W) (NaN on invalid pixels) and
@@ -570,9 +607,12 @@ def run_fcn(net: ResidualFCN, calibrated_mm: np.ndarray, amplitude: np.ndarray, 
     h, w = calibrated_mm.shape[-2:]
     x, valid = fcn_inputs(calibrated_mm, amplitude, net.architecture.multiple)
     # channels-last: oneDNN's direct convolutions run faster on NHWC on the CPU
-    x = x.to(dev).contiguous(memory_format=torch.channels_last)
-    with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=precision == "bfloat16"):
-        out = net.raw(x)
+    if fcn_engine(engine, dev, precision) == "onnxruntime":
+        out = fcn_onnx.run_unet(net, x, torch.get_num_threads())
+    else:
+        x = x.to(dev).contiguous(memory_format=torch.channels_last)
+        with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=precision == "bfloat16"):
+            out = net.raw(x)
     corr, sigma = net.scale(out[..., :h, :w], x[..., :h, :w])
     nan = np.float32(np.nan)
     corr_np = corr.float().cpu().numpy()

@@ -42,6 +42,14 @@ TARGET_CLIP_MM = 15.0
 PATCH_PRECISIONS = ("float32", "bfloat16", "int8")
 
 
+def weights_version(*modules: nn.Module) -> tuple[tuple[int, int, int], ...]:
+    """Identifies the current weights of ``modules`` without reading them: each parameter's
+    identity, storage and in-place version counter (``Tensor._version``: a training step or
+    ``load_state_dict`` bumps it). The one key of every cache built from weights (the patch
+    kind's fused engine, the fcn kind's ONNX Runtime session)."""
+    return tuple((id(p), p.data_ptr(), p._version) for m in modules for p in m.parameters())
+
+
 def _uniform_(t: torch.Tensor, bound: float, generator: torch.Generator | None) -> None:
     with torch.no_grad():
         t.uniform_(-bound, bound, generator=generator)

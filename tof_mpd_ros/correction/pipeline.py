@@ -74,6 +74,7 @@ from .networks import (
     HeadOutputs,
     PatchNets,
     RangeRecoveryNet,
+    weights_version,
 )
 
 # Pixels per band on the CPU: the band's encodings (240 x 2880, 2.8 MB in float32, 0.7 MB in
@@ -248,6 +249,7 @@ def correct(
     precision: str = "float32",
     threads: int | None = None,
     geodesic: GeodesicParams | None = None,
+    fcn_engine: str = "auto",
 ) -> CorrectionResult:
     """Remove multipath distortion from one frame or a batch of frames.
 
@@ -255,8 +257,9 @@ def correct(
         model: the correction model (either kind); its networks are moved to ``device``. For
             the ``"fcn"`` kind (:class:`~.fcn.FCNCorrectionModel`) the network replaces F, G
             and the geodesic filter: ``use_range_net=False`` gives the calibrated range,
-            ``precision`` sets its convolutions' (:func:`~.fcn.run_fcn`), ``use_boundary``,
-            ``threads`` and ``geodesic`` do not apply.
+            ``precision`` sets its convolutions' and ``fcn_engine`` their executor
+            (:func:`~.fcn.run_fcn`), ``use_boundary``, ``threads`` and ``geodesic`` do not
+            apply.
         range_mm: (H, W) or (B, H, W) float raw radial range in mm; NaN/inf/<= 0 = invalid.
         amplitude: same shape, raw amplitude in sensor units; NaN/inf/<= 0 = invalid.
         device: torch device for the networks (CPU default; GPU optional).
@@ -270,18 +273,22 @@ def correct(
             usable CPUs).
         geodesic: edge thresholds and geodesic filter constants to use instead of
             ``model.geodesic`` (None: the model's, i.e. the weights file's).
+        fcn_engine: the fcn kind's executor, one of :data:`~.fcn.FCN_ENGINES` (default
+            ``"auto"``: ONNX Runtime on the CPU in float32 on 2+ threads when installed, else
+            torch, :func:`~.fcn.fcn_engine`; the two agree within 1e-5 mm).
 
     Returns:
         A :class:`CorrectionResult` shaped like the input.
 
     Raises:
         InputError: see :func:`check_frame_pair`; an unknown ``precision`` (or ``"int8"`` for
-            the fcn kind, or off the CPU); ``threads`` < 1.
+            the fcn kind, or off the CPU); ``threads`` < 1; an unknown ``fcn_engine``, or
+            ``"onnxruntime"`` where it cannot run (:func:`~.fcn.fcn_engine`).
     """
     r, a = check_frame_pair(model.shape, range_mm, amplitude)
     check_precision(model, precision)
     if isinstance(model, FCNCorrectionModel):
-        return _correct_fcn(model, r, a, device, use_range_net, precision)
+        return _correct_fcn(model, r, a, device, use_range_net, precision, fcn_engine)
     params = model.geodesic if geodesic is None else geodesic
     single = r.ndim == 2
     r3 = r[None] if single else r
@@ -352,8 +359,8 @@ def require_patch_kind(model: object, what: str) -> None:
 
 
 def _correct_fcn(model: FCNCorrectionModel, r: np.ndarray, a: np.ndarray,
-                 device: torch.device | str, use_net: bool, precision: str
-                 ) -> CorrectionResult:
+                 device: torch.device | str, use_net: bool, precision: str,
+                 engine: str = "auto") -> CorrectionResult:
     """:func:`correct` for the ``"fcn"`` kind (see :class:`CorrectionResult`)."""
     single = r.ndim == 2
     r3, a3 = (r[None], a[None]) if single else (r, a)
@@ -362,7 +369,7 @@ def _correct_fcn(model: FCNCorrectionModel, r: np.ndarray, a: np.ndarray,
     nan = np.float32(np.nan)
     if use_net:
         corr, sigma, valid = run_fcn(model.net, calibrated, a3, device=device,
-                                     precision=precision)
+                                     precision=precision, engine=engine)
         range_f = (calibrated + corr).astype(np.float32)
         sure = valid & (sigma <= model.max_sigma_mm)
         final = resolve_to_a_side(range_f, sure, valid & ~sure)
@@ -396,10 +403,9 @@ _ENGINES: dict[int, tuple[weakref.ref, tuple, list[_Engine]]] = {}
 def _model_key(model: CorrectionModel, precision: str, workers: int,
                device: torch.device) -> tuple:
     """What the engine depends on: network tensors (identity and in-place version), shape..."""
-    params = [*model.range_net.parameters(), *model.boundary_nets.parameters()]
     return (model.shape, model.encoding, precision, workers, str(device),
             float(model.range_net.target_clip_mm),
-            tuple((id(p), p.data_ptr(), p._version) for p in params))
+            weights_version(model.range_net, model.boundary_nets))
 
 
 @contextlib.contextmanager
