@@ -21,6 +21,7 @@ version and thread count (:func:`session_for`).
 
 from __future__ import annotations
 
+import functools
 import os
 import threading
 import weakref
@@ -38,8 +39,10 @@ OPSET = 17
 MAX_SESSIONS = 4
 
 
+@functools.cache
 def available() -> bool:
-    """Whether ONNX Runtime and the ``onnx`` graph builder are installed."""
+    """Whether ONNX Runtime and the ``onnx`` graph builder are installed (asked once: a failed
+    import searches the path again on every call)."""
     try:
         import onnx  # noqa: F401
         import onnxruntime  # noqa: F401
