@@ -439,7 +439,7 @@ def fcn_inputs(calibrated_mm: np.ndarray, amplitude: np.ndarray, multiple: int
     planes = np.stack([np.where(valid, rel, 0.0), r0 / 1000.0,
                        np.where(valid, log_a - _median_per_frame(log_a, valid), 0.0),
                        v, log_a / LOG_AMPLITUDE_SCALE, _local_detail(r0, v)],
-                      axis=1).astype(np.float32)
+                      axis=1).astype(np.float32, copy=False)
     return pad_to_multiple(torch.from_numpy(planes), multiple), valid
 
 
