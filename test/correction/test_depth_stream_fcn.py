@@ -12,6 +12,7 @@ import pytest
 
 from tof_mpd_ros.calibration import IntrinsicCalibration
 from tof_mpd_ros.camera import Intrinsics
+from tof_mpd_ros.correction import fcn_onnx
 from tof_mpd_ros.correction.depth_stream import DepthStreamCorrector, confidence_image
 from tof_mpd_ros.correction.fcn import FCNCorrectionModel
 from tof_mpd_ros.correction.pipeline import CorrectionModel, GeodesicParams, correct
@@ -113,3 +114,32 @@ def test_bfloat16_stream_is_correct_in_bfloat16(model: FCNCorrectionModel) -> No
     assert np.nanmax(np.abs(bf16.range_f_mm - f32.range_f_mm)) < 1.0
     with pytest.raises(InputError, match="precision"):
         DepthStreamCorrector(model, precision="int8")
+
+
+@pytest.mark.skipif(not fcn_onnx.available(), reason="onnxruntime and onnx are not installed")
+def test_the_stream_runs_the_executor_it_is_given(model: FCNCorrectionModel) -> None:
+    """``fcn_engine`` reaches ``correct``: forced to either executor on two threads, the stream
+    gives ``correct``'s output under that executor, the two within a micrometre (not bit-equal:
+    the arithmetic is ordered differently). A value that cannot run is refused at construction
+    for the fcn kind and ignored, if valid, for the patch kind."""
+    depth, amplitude = _frame()
+    sigmas = {}
+    for engine in ("torch", "onnxruntime"):
+        stream = DepthStreamCorrector(model, input_convention="radial", threads=2,
+                                      fcn_engine=engine)
+        out = stream.correct(depth, amplitude, K)
+        want = correct(model, depth[CROP], amplitude[CROP], fcn_engine=engine)
+        np.testing.assert_allclose(out.depth_mm, want.range_mm, rtol=1e-6, equal_nan=True)
+        np.testing.assert_allclose(out.sigma_mm, want.sigma_mm, rtol=1e-6, equal_nan=True)
+        sigmas[engine] = out.sigma_mm
+    ok = np.isfinite(sigmas["torch"])
+    assert np.array_equal(ok, np.isfinite(sigmas["onnxruntime"])) and ok.sum() == H * W - 2
+    # σ in mm: equal to float32 rounding, not bit for bit (another order of arithmetic)
+    assert 0 < np.abs(sigmas["torch"] - sigmas["onnxruntime"])[ok].max() < 1e-3
+    with pytest.raises(InputError, match="float32 only"):
+        DepthStreamCorrector(model, precision="bfloat16", fcn_engine="onnxruntime")
+    with pytest.raises(InputError, match="fcn_engine must be one of"):
+        DepthStreamCorrector(model, fcn_engine="tflite")
+    patch = CorrectionModel.untrained(IntrinsicCalibration.identity(H, W), seed=1)
+    assert DepthStreamCorrector(patch, precision="int8",
+                                fcn_engine="onnxruntime").fcn_engine == "onnxruntime"

@@ -36,7 +36,8 @@ from ..image_encoding import (
 from ..validation import check_array
 from . import geodesic
 from .edges import edge_map_from_best
-from .fcn import FCNCorrectionModel
+from .fcn import FCN_ENGINES, FCNCorrectionModel
+from .fcn import fcn_engine as fcn_engine_for
 from .pipeline import (
     CorrectionModel,
     GeodesicParams,
@@ -234,16 +235,20 @@ class DepthStreamCorrector:
         crop: (width, height) of the processed central window; None = the model's frame.
         precision: one of :data:`~.pipeline.PRECISIONS` (the networks' arithmetic,
             :func:`~.pipeline.correct`; ``"int8"`` the patch kind only).
+        fcn_engine: the fcn kind's executor (:func:`~.fcn.fcn_engine`); the patch kind
+            ignores it.
 
     Raises:
-        InputError: an unknown convention or precision, ``threads`` < 0, ``geodesic`` for an
-            fcn model, or a ``crop`` larger than the model's frame.
+        InputError: an unknown convention, precision or ``fcn_engine`` (or
+            ``"onnxruntime"`` where it cannot run), ``threads`` < 0, ``geodesic`` for an fcn
+            model, or a ``crop`` larger than the model's frame.
     """
 
     def __init__(self, model: CorrectionModel | FCNCorrectionModel, *,
                  input_convention: str = "z", device: str = "cpu", threads: int = 0,
                  geodesic: GeodesicParams | None = None,
-                 crop: tuple[int, int] | None = None, precision: str = "float32") -> None:
+                 crop: tuple[int, int] | None = None, precision: str = "float32",
+                 fcn_engine: str = "auto") -> None:
         if input_convention not in CONVENTIONS:
             raise InputError(f"input_convention must be one of {CONVENTIONS}, "
                              f"got {input_convention!r}")
@@ -252,6 +257,11 @@ class DepthStreamCorrector:
         self.threads = threads
         check_precision(model, precision)
         self.precision = precision
+        if fcn_engine not in FCN_ENGINES:
+            raise InputError(f"fcn_engine must be one of {FCN_ENGINES}, got {fcn_engine!r}")
+        if isinstance(model, FCNCorrectionModel):  # refused now, not per frame
+            fcn_engine_for(fcn_engine, device, precision)
+        self.fcn_engine = fcn_engine
         self.model = model
         self.kind = model.kind
         if isinstance(model, FCNCorrectionModel):
@@ -346,7 +356,8 @@ class DepthStreamCorrector:
                 torch.set_num_threads(self.threads)
             numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
         result = correct(self._window_model(height, width), range_mm, amp, device=self.device,
-                         geodesic=self.geodesic, precision=self.precision)
+                         geodesic=self.geodesic, precision=self.precision,
+                         fcn_engine=self.fcn_engine)
         out, sigma = result.range_mm, result.sigma_mm
         if self.input_convention == "z":
             out = crop_intrinsics.radial_to_z(out)

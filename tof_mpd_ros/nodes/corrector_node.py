@@ -107,6 +107,11 @@ PARAMETERS = (
       "at a few threshold pixels, which moves the final range by > 0.5 mm on 0.1-0.5 % of "
       "the pixels.",
       choices=("float32", "bfloat16", "int8")),
+    P("fcn_engine", "auto", "Executor of the fcn kind's network: auto (ONNX Runtime on the "
+      "CPU in float32 on 2+ threads, where it measured faster; torch otherwise), torch, or "
+      "onnxruntime (refused where it cannot run: another device, bfloat16). Outputs agree "
+      "within 1e-5 mm. Ignored for the patch kind.",
+      choices=("auto", "torch", "onnxruntime")),
     P("crop_width", 0, "Width of the processed central window of each frame, pixels; 0 = the "
       "weights' whole frame (the shipped weights: the full 320x240 sensor). The paper's "
       "crop is 180 x 140. A frame smaller than the window is processed whole.",
@@ -150,7 +155,8 @@ PATCH_ONLY_PARAMETERS = ("edge_low", "edge_high", "geodesic_k", "geodesic_sigma"
 # Parameters whose change builds a new correction before it is accepted; the first two load
 # the weights file again (a new model, warmed up on the device before the worker sees it).
 RELOAD_PARAMETERS = ("weights_path", "device")
-REBUILD_PARAMETERS = (*RELOAD_PARAMETERS, "input_convention", "precision", "crop_width",
+REBUILD_PARAMETERS = (*RELOAD_PARAMETERS, "input_convention", "precision", "fcn_engine",
+                      "crop_width",
                       "crop_height",
                       "threads", "edge_low",
                       "edge_high", "geodesic_k", "geodesic_sigma")
@@ -655,7 +661,8 @@ def _stream_for(model: CorrectionModel | FCNCorrectionModel, values: Mapping[str
     crop = (values["crop_width"] or width, values["crop_height"] or height)
     return DepthStreamCorrector(model, input_convention=values["input_convention"],
                                 device=values["device"], threads=values["threads"],
-                                geodesic=geodesic, crop=crop, precision=values["precision"])
+                                geodesic=geodesic, crop=crop, precision=values["precision"],
+                                fcn_engine=values["fcn_engine"])
 
 
 def ignored_parameters(stream: DepthStreamCorrector, values: Mapping[str, Any]
