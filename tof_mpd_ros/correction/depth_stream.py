@@ -36,7 +36,7 @@ from ..image_encoding import (
 from ..validation import check_array
 from . import geodesic
 from .edges import edge_map_from_best
-from .fcn import FCN_ENGINES, FCNCorrectionModel
+from .fcn import FCNCorrectionModel, check_engine_name
 from .fcn import fcn_engine as fcn_engine_for
 from .pipeline import (
     CorrectionModel,
@@ -257,8 +257,7 @@ class DepthStreamCorrector:
         self.threads = threads
         check_precision(model, precision)
         self.precision = precision
-        if fcn_engine not in FCN_ENGINES:
-            raise InputError(f"fcn_engine must be one of {FCN_ENGINES}, got {fcn_engine!r}")
+        check_engine_name(fcn_engine)
         if isinstance(model, FCNCorrectionModel):  # refused now, not per frame
             fcn_engine_for(fcn_engine, device, precision)
         self.fcn_engine = fcn_engine

@@ -550,24 +550,29 @@ class FCNCorrectionModel:
 FCN_ENGINES = ("auto", "torch", "onnxruntime")
 
 
+def check_engine_name(engine: str) -> None:
+    """Raise InputError unless ``engine`` is one of :data:`FCN_ENGINES`."""
+    if engine not in FCN_ENGINES:
+        raise InputError(f"fcn_engine must be one of {FCN_ENGINES}, got {engine!r}")
+
+
 def fcn_engine(engine: str, device: torch.device | str, precision: str) -> str:
     """The executor ``run_fcn`` uses for ``engine`` on ``device`` in ``precision``:
     ``"torch"`` or ``"onnxruntime"``.
 
     ``"auto"`` takes ONNX Runtime where it can run the call (installed, the CPU, float32) on 2
     or more threads, else torch. Why the thread count: measured side by side on 2 Zen 4 cores
-    (docs/performance.md, session 31), one frame on two threads took 15.7 against 21.1 ms at
-    180×140 and 31.5 against 37.0 at 320×240 under ONNX Runtime, but on one thread each (the
-    node's ``parallel_frames``) torch's oneDNN convolutions were as fast or faster (9.2 against
-    9.9, 22.8 against 27.2 ms per frame).
+    (docs/performance.md, session 31), one frame on two threads took 14.1 against 21.6 ms at
+    180×140 and 30.6 against 35.4 at 320×240 under ONNX Runtime, but on one thread each (the
+    node's ``parallel_frames``) torch's oneDNN convolutions were faster (9.6 against 10.1,
+    24.5 against 27.3 ms per frame).
 
     Raises:
         InputError: an unknown ``engine``, or ``"onnxruntime"`` where it cannot run (not
             installed, another device than the CPU, or bfloat16, which its CPU convolutions
             do not have).
     """
-    if engine not in FCN_ENGINES:
-        raise InputError(f"engine must be one of {FCN_ENGINES}, got {engine!r}")
+    check_engine_name(engine)
     possible = torch.device(device).type == "cpu" and precision == "float32"
     if engine == "onnxruntime" and not (possible and fcn_onnx.available()):
         raise InputError("engine 'onnxruntime' runs the fcn kind on the CPU in float32 only, "
@@ -606,10 +611,10 @@ def run_fcn(net: ResidualFCN, calibrated_mm: np.ndarray, amplitude: np.ndarray, 
         net.to(dev)
     h, w = calibrated_mm.shape[-2:]
     x, valid = fcn_inputs(calibrated_mm, amplitude, net.architecture.multiple)
-    # channels-last: oneDNN's direct convolutions run faster on NHWC on the CPU
     if fcn_engine(engine, dev, precision) == "onnxruntime":
         out = fcn_onnx.run_unet(net, x, torch.get_num_threads())
     else:
+        # channels-last: oneDNN's direct convolutions run faster on NHWC on the CPU
         x = x.to(dev).contiguous(memory_format=torch.channels_last)
         with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=precision == "bfloat16"):
             out = net.raw(x)

@@ -4,8 +4,8 @@ Why. The U-Net's 19 convolutions are small (8–64 channels), so in torch's eage
 threads each is bound by its call overhead and by waking the sleeping OpenMP thread, not by
 arithmetic (docs/performance.md: 20–30 % of the float32 peak on Zen 4). ONNX Runtime plans the
 whole graph once, fuses each convolution with its ReLU and runs every operator on one thread
-pool of its own: on 2 Zen 4 cores a whole 180×140 correction took 15.7 against torch's 21.1 ms
-(docs/performance.md, session 31). On one thread torch's oneDNN convolutions are as fast, so
+pool of its own: on 2 Zen 4 cores a whole 180×140 correction took 14.1 against torch's 21.6 ms
+(docs/performance.md, session 31). On one thread torch's oneDNN convolutions are faster, so
 :func:`.fcn.fcn_engine` takes this one on two threads or more. Torch stays the reference and
 the trainer's executor; the tests hold this one to it.
 
