@@ -323,3 +323,32 @@ def test_top1_on_decidable_cases_leaves_out_the_ties_of_the_likelihood():
     assert s["decidable_effect_cases"] == 2          # the right answer and the 40 mnats miss
     assert s["top1_accuracy_decidable_effect_cases"] == 0.5
     assert s["misses_the_truth_fits_no_better"] == 2
+
+
+def test_the_verdict_says_when_the_model_leaves_something_unexplained():
+    """An empty answer with misfits is not "no significant mismatch" (ADI mode 3 of session 32
+    named nothing and left 13.9 mm RMSE with a refused interreflection gain); a fit inside the
+    camera's own window is no misfit; each effect and case is said once."""
+    from tof_mpd_ros.mismatch.analysis import Analysis
+    from tof_mpd_ros.mismatch.report import misfits, to_json
+
+    nominal = ToFConfig.nominal()
+
+    def verdict(selected, unexplained):
+        a = Analysis(selected, [], {}, nominal, nominal, {}, {}, [])
+        a.unexplained = unexplained
+        return to_json(a)["verdict"]
+
+    signature = {"effect": "multipath", "case": "signature"}
+    edge = {"effect": "noise_model", "case": "profile_edge"}
+    window = {"effect": "multipath", "case": "camera_window"}
+    assert verdict([], []) == "none: no significant mismatch"
+    assert verdict([], [window]) == "none: no significant mismatch"
+    assert verdict([], [signature, edge, signature]) == (
+        "none named; the model does not explain all of the residual: multipath (signature), "
+        "noise_model (profile edge)")
+    assert verdict(["mixed_pixels", "multipath"], []) == "mixed_pixels, multipath"
+    assert verdict(["mixed_pixels"], [window, edge]) == (
+        "mixed_pixels; the model does not explain all of the residual: noise_model (profile "
+        "edge)")
+    assert misfits([window, edge]) == [edge]

@@ -28,7 +28,7 @@ def to_json(analysis: Analysis) -> dict[str, Any]:
     m = analysis.metrics
     return _clean({
         "selected": analysis.selected,
-        "verdict": text("verdict", analysis.selected),
+        "verdict": text("verdict", analysis.selected, misfits(analysis.unexplained)),
         "workflow": analysis.workflow,
         "camera_profile": {"effects": analysis.profile,
                            "parameters": {e: analysis.parameters[e] for e in analysis.profile},
@@ -45,6 +45,14 @@ def to_json(analysis: Analysis) -> dict[str, Any]:
         "config_before": analysis.config_before.to_dict(),
         "config_after": analysis.config_after.to_dict(),
     })
+
+
+def misfits(unexplained: list[dict[str, Any]]) -> list[dict[str, str]]:
+    """``{"effect", "case"}`` of every entry of ``Analysis.unexplained`` that says the model
+    does not explain the residual, in order, each pair once; a fit inside the camera's own
+    window is not one (the camera may have that value)."""
+    pairs = [(u["effect"], u["case"]) for u in unexplained if u.get("case") != "camera_window"]
+    return [{"effect": e, "case": c} for e, c in dict.fromkeys(pairs)]
 
 
 def _clean(obj: Any) -> Any:
