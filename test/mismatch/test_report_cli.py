@@ -352,3 +352,14 @@ def test_the_verdict_says_when_the_model_leaves_something_unexplained():
         "mixed_pixels; the model does not explain all of the residual: noise_model (profile "
         "edge)")
     assert misfits([window, edge]) == [edge]
+
+
+def test_merged_rows_tell_runs_of_two_seeds_apart(tmp_path):
+    """Shard directories of two seeds share their names (``s1/0``, ``s2/0``): the merged rows
+    carry as much of the path as tells them apart, and only that much."""
+    from tof_mpd_ros.mismatch.benchmark import _run_names
+
+    dirs = [tmp_path / "s1" / "0", tmp_path / "s2" / "0", tmp_path / "s2" / "1"]
+    assert _run_names(dirs) == ["s1/0", "s2/0", "s2/1"]
+    assert _run_names(dirs[1:]) == ["0", "1"]
+    assert _run_names([dirs[0], dirs[0]]) == [str(dirs[0].resolve())] * 2

@@ -396,13 +396,14 @@ def merge_runs(run_dirs: list[str | Path], out_dir: str | Path) -> dict[str, Any
     not: every case with an answer counts); each stored answer goes through
     :func:`reselect`."""
     rows = []
-    for d in map(Path, run_dirs):
+    dirs = [Path(d) for d in run_dirs]
+    for d, name in zip(dirs, _run_names(dirs), strict=True):
         for label in json.loads((d / "labels.json").read_text()):
             res = d / "results" / f"case_{label['case']:03d}.json"
             if res.exists():
                 answer = reselect(json.loads(res.read_text()))
                 row = _score_case(label, answer, _oracle_of(d, label, answer))
-                row["case"] = f"{d.name}/{label['case']}"
+                row["case"] = f"{name}/{label['case']}"
                 rows.append(row)
     if not rows:
         raise MismatchError(f"no scored case in {', '.join(map(str, run_dirs))}")
@@ -413,6 +414,18 @@ def merge_runs(run_dirs: list[str | Path], out_dir: str | Path) -> dict[str, Any
     (out / "benchmark.json").write_text(json.dumps(doc, indent=2))
     (out / "benchmark.txt").write_text(text_table(rows, summary) + "\n")
     return doc
+
+
+def _run_names(dirs: list[Path]) -> list[str]:
+    """The fewest trailing path parts that tell the run directories apart (``s115/0`` and
+    ``s116/0`` rather than ``0`` twice: shards of two seeds share their shard names)."""
+    resolved = [d.resolve() for d in dirs]
+    longest = max((len(d.parts) for d in resolved), default=1)
+    for k in range(1, longest + 1):
+        names = ["/".join(d.parts[-k:]) for d in resolved]
+        if len(set(names)) == len(names):
+            return names
+    return [str(d) for d in resolved]      # the same directory given twice
 
 
 def _finished_labels(out: Path, plan: list[tuple[str, ...]],
