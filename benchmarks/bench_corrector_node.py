@@ -11,7 +11,7 @@ Three processes on loopback, in their own ROS domain (``--domain-id``, default 9
   the frame; ``--weights`` to use a trained file: the per-frame cost does not depend on the
   weights' values; ``--window 32x24`` processes a small central window of the same frames, to
   see what the node itself sustains); ``--threads`` and ``--parallel-frames`` set the node's
-  parameters of those names;
+  parameters of those names, ``--queue-size`` its ``queue_size``;
 * the listener (this process) receives the corrected depth and ``/diagnostics``.
 
 End-to-end latency = listener receive time - the input's header stamp (one host clock): it
@@ -157,6 +157,7 @@ def measure(rate: float, args: argparse.Namespace, weights: Path, log_dir: str) 
          "-p", f"weights_path:={weights}", "-p", "diagnostics_period_s:=0.5",
          "-p", f"threads:={args.threads}", "-p", f"precision:={args.precision}",
          "-p", f"parallel_frames:={args.parallel_frames}",
+         "-p", f"queue_size:={args.queue_size}",
          "-r", "__ns:=/tof"],  # its topics are relative
         env=env, stdout=log, stderr=subprocess.STDOUT)
     context = rclpy.Context()
@@ -247,6 +248,8 @@ def main() -> None:
                         "(default 1, the node's default)")
     parser.add_argument("--parallel-frames", type=int, default=1,
                         help="the node's parallel_frames parameter (frames corrected at once)")
+    parser.add_argument("--queue-size", type=int, default=2,
+                        help="the node's queue_size parameter (pairs waiting for a worker)")
     parser.add_argument("--precision", choices=("float32", "bfloat16", "int8"), default="float32",
                         help="the node's precision parameter")
     parser.add_argument("--json", help="also write the numbers to this JSON file")
@@ -301,8 +304,8 @@ def main() -> None:
     window = (min(window[0], frame[0]), min(window[1], frame[1]))
     print(f"frame: {frame[0]}x{frame[1]} 32FC1, {model.kind} kind, {args.precision}, window "
           f"{window[0]}x{window[1]}; node: threads {args.threads}, parallel_frames "
-          f"{args.parallel_frames}; in-process DepthStreamCorrector.correct ({args.threads} "
-          f"thread(s), one frame at a time): median "
+          f"{args.parallel_frames}, queue_size {args.queue_size}; in-process "
+          f"DepthStreamCorrector.correct ({args.threads} thread(s), one frame at a time): median "
           f"{offline_ms:.1f} ms")
     rows = [("input rate (Hz)", "rate_hz", "{:g}"), ("frames sent", "sent", "{}"),
             ("corrected", "corrected", "{}"), ("dropped", "dropped", "{}"),
@@ -324,7 +327,9 @@ def main() -> None:
     if args.json:
         Path(args.json).write_text(json.dumps(
             {"machine": machine, "frame": list(frame), "kind": model.kind,
-             "window": list(window),
+             "window": list(window), "node_parameters": {
+                 "threads": args.threads, "parallel_frames": args.parallel_frames,
+                 "queue_size": args.queue_size, "precision": args.precision},
              "offline_correct_ms": offline_ms, "results": results}, indent=2))
 
 
