@@ -363,3 +363,15 @@ def test_merged_rows_tell_runs_of_two_seeds_apart(tmp_path):
     assert _run_names(dirs) == ["s1/0", "s2/0", "s2/1"]
     assert _run_names(dirs[1:]) == ["0", "1"]
     assert _run_names([dirs[0], dirs[0]]) == [str(dirs[0].resolve())] * 2
+
+
+def test_merge_names_a_path_that_is_not_a_run_instead_of_crashing(tmp_path):
+    """``--merge dir/*`` also matches the runs' ``.log`` files: the error names them."""
+    from tof_mpd_ros.errors import MismatchError
+    from tof_mpd_ros.mismatch.benchmark import merge_runs
+
+    log = tmp_path / "0.log"
+    log.write_text("benchmark cases: 100%\n")
+    with pytest.raises(MismatchError, match=r"not a benchmark directory.*0\.log"):
+        merge_runs([log], tmp_path / "out")
+    assert not (tmp_path / "out").exists()

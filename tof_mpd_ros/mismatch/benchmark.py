@@ -397,6 +397,9 @@ def merge_runs(run_dirs: list[str | Path], out_dir: str | Path) -> dict[str, Any
     :func:`reselect`."""
     rows = []
     dirs = [Path(d) for d in run_dirs]
+    not_runs = [str(d) for d in dirs if not (d / "labels.json").is_file()]
+    if not_runs:  # a shell glob also matches the runs' logs
+        raise MismatchError(f"not a benchmark directory (no labels.json): {', '.join(not_runs)}")
     for d, name in zip(dirs, _run_names(dirs), strict=True):
         for label in json.loads((d / "labels.json").read_text()):
             res = d / "results" / f"case_{label['case']:03d}.json"
