@@ -64,12 +64,16 @@ from tof_mpd_ros.recordings import iter_frames
 BARRIER = 1.0e4
 THRESHOLDS_MM = (2.0, 5.0, 10.0)
 AGREEMENT_MM = 0.5
+#: (R_F mm, edge map, reference mm) of one frame, each (H, W): float32, bool, float
+Inputs = list[tuple[np.ndarray, np.ndarray, np.ndarray]]
+Filters = dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]]
 
 
 def domain_transform(range_f: np.ndarray, edges: np.ndarray, sigma: float, mode: int
                      ) -> np.ndarray:
     """(H, W) float32 R_F (mm, NaN = missing) filtered by the domain transform with ``edges``
-    ((H, W) bool) as barriers; edge pixels snapped as the exact filter does."""
+    ((H, W) bool) as barriers, spatial ``sigma`` in pixels; edge pixels snapped as the exact
+    filter does. Returns (H, W) float32 mm, NaN where no usable pixel is near."""
     valid = np.isfinite(range_f)
     weight = (valid & ~edges).astype(np.float32)
     stack = np.dstack([np.where(valid, range_f, 0.0).astype(np.float32) * weight, weight])
@@ -81,7 +85,7 @@ def domain_transform(range_f: np.ndarray, edges: np.ndarray, sigma: float, mode:
     return geodesic._snap_edge_pixels(filtered.astype(np.float64), range_f, edges, True)
 
 
-def candidates(sigma: float, k: int) -> dict[str, Callable[[np.ndarray, np.ndarray], np.ndarray]]:
+def candidates(sigma: float, k: int) -> Filters:
     """name -> filter(range_f, edges) -> (H, W) float32 mm."""
     return {
         "exact": lambda r, e: geodesic.geodesic_filter(r, e, k=k, sigma=sigma),
@@ -99,16 +103,18 @@ def render_default_frames(out: Path) -> list[Path]:
     return [out / "md_test"]
 
 
-def corrected_inputs(model: CorrectionModel, paths: list[Path]
-                     ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def corrected_inputs(model: CorrectionModel, paths: list[Path]) -> Inputs:
     """(R_F, edge map, reference) of every frame with a reference, all (H, W)."""
     rows = []
+    fitted: dict[tuple[int, int], CorrectionModel] = {}  # one window cut per frame size
     for path in paths:
         for frame in iter_frames(path):
             if frame.reference_mm is None:
                 continue
-            fitted = fit_to_frames(model, frame.range_mm.shape)
-            res = correct(fitted, frame.range_mm, frame.amplitude)
+            shape = frame.range_mm.shape
+            if shape not in fitted:
+                fitted[shape] = fit_to_frames(model, shape)
+            res = correct(fitted[shape], frame.range_mm, frame.amplitude)
             rows.append((res.range_f_mm, res.edges, frame.reference_mm))
     return rows
 
@@ -130,7 +136,7 @@ def upscale(a: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
     return a[iy][:, ix]
 
 
-def accuracy_rows(inputs, filters) -> dict[str, dict[str, float]]:
+def accuracy_rows(inputs: Inputs, filters: Filters) -> dict[str, dict[str, float]]:
     rows = {}
     exact = [filters["exact"](r, e) for r, e, _ in inputs]
     for name, fn in filters.items():
@@ -148,7 +154,7 @@ def accuracy_rows(inputs, filters) -> dict[str, dict[str, float]]:
     return rows
 
 
-def timing_rows(inputs, filters, repeats: int) -> dict[str, dict[str, float]]:
+def timing_rows(inputs: Inputs, filters: Filters, repeats: int) -> dict[str, dict[str, float]]:
     r, e, _ = max(inputs, key=lambda x: int(x[1].sum()))  # the frame with the most edge pixels
     big = (upscale(r, (240, 320)), upscale(e, (240, 320)))
     return {name: {f"ms {r.shape[1]}x{r.shape[0]}": median_ms(fn, r, e, repeats),
