@@ -122,7 +122,7 @@ class Analysis:
         profile_words: the camera's profile in words, relative to the nominal cell.
         unexplained: candidates that fitted best but are not taken, with why (``case``: a
             parameter at the ``"edge"`` of its range, the model does not explain this; a fit
-            inside the ``"camera_window"``; a halo as wide as the frame, a ``"veil"``; a gain
+            inside the ``"camera_window"``; a gain
             of interreflection that does not explain the residual where its own correction
             is large, ``"signature"``), and profile effects that ended at the edge of their
             range (``"profile_edge"``), each with where the residual sits.
@@ -406,6 +406,11 @@ class _Search:
     #: residual before and after it
     concentration: dict[str, dict[str, Any]] = field(default_factory=dict)
 
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(H, W) of the smallest frame: what every frame resolves (:func:`resolved_box`)."""
+        return min((m.shape for m in self.problem.real_mm), key=min)
+
     def greedy(self, candidates: Sequence[str], limit: int,
                boxes: dict[str, list[tuple[float, float]]] | None = None,
                rejoin: Collection[str] = (), profile: bool = False) -> list[str]:
@@ -425,7 +430,7 @@ class _Search:
             for name in candidates:
                 if name in used:
                     continue
-                box = boxes.get(name)
+                box = boxes.get(name) or resolved_box(name, self.shape)
                 results.append(self._with_refit(fit_effect(self.problem, name, box=box),
                                                 box))
                 if self.progress:
@@ -483,10 +488,6 @@ class _Search:
                 self._unexplain("camera_window", r.effect, k + 1, r.score, param=param,
                                 value=r.parameters[param], low=lo, high=hi,
                                 **CAMERA_WINDOW_REASONS[r.effect])
-                continue
-            veil = veil_px(r, self.problem.real_mm[0].shape)
-            if veil is not None:
-                self._unexplain("veil", r.effect, k + 1, r.score, **veil)
                 continue
             edge = parameters_at_edge(r)
             chosen = self._away_from_edge(r, edge) if edge else r
@@ -622,10 +623,13 @@ class _Search:
         drift's size and time constant over a few frames), not a limit the data pushes
         against. None when the edge binds: the model does not explain the residual."""
         box = []
-        for p in free_params(result.effect):
+        params = free_params(result.effect)
+        searched = resolved_box(result.effect, self.shape) or [(0.0, 1.0)] * len(params)
+        for p, (lo, hi) in zip(params, searched, strict=True):
             u = p.unit(result.parameters.get(p.name, p.low))
-            box.append((0.0, 1.0) if p.name not in edge else
-                       (0.0, 1.0 - INNER_MARGIN) if u > 0.5 else (INNER_MARGIN, 1.0))
+            inner = ((0.0, 1.0) if p.name not in edge else
+                     (0.0, 1.0 - INNER_MARGIN) if u > 0.5 else (INNER_MARGIN, 1.0))
+            box.append((max(lo, inner[0]), min(hi, inner[1])))
         q = self._with_refit(fit_effect(self.problem, result.effect, box=box), box)
         if q.note or parameters_at_edge(q) or \
                 q.train_gain < EDGE_SLACK * result.train_gain:
@@ -803,17 +807,32 @@ def window_box(effect: str) -> list[tuple[float, float]]:
             for p in free_params(effect)]
 
 
-def veil_px(result: FitResult, shape: tuple[int, int]) -> dict[str, float] | None:
-    """A lens halo at least as wide as the frame's short side: its kernel's weight varies by
-    less than e^(-1/2) over the frame, so the glare it adds is a near-uniform veil of the
-    scene's mean phasor, and a veil is what any global light the model lacks (interreflection
-    a path tracer's glossy parts send, ambient light) adds too. Such a fit names no lens: the
-    width that makes a halo a lens's signature is not resolved. Returns the facts the
-    template words (``sigma_px``, ``short_side_px``), or None."""
-    if result.effect != "lens_scatter" or "sigma_px" not in result.parameters:
+#: a halo's width is resolved on a frame up to this share of its short side (issue 13, item 2)
+HALO_RESOLVED_SHARE = 0.5
+
+
+def resolved_box(effect: str, shape: tuple[int, int]) -> list[tuple[float, float]] | None:
+    """The part of ``effect``'s range a frame of ``shape`` (H, W) resolves, in unit-box
+    coordinates, or None for the whole range. A lens halo's glare is told from the global
+    light the model lacks (a path tracer's glossy interreflection, ambient light) only by
+    how it varies over the frame: wider than ``HALO_RESOLVED_SHARE`` of the short side, its
+    kernel's weight varies by less than e^-2 across it and the glare tends to a uniform veil
+    of the scene's mean phasor, which any such light adds too. So the width is searched up
+    to that: a wider halo is fitted at it, as a halo at least that wide (session 34). On the
+    full sensor (240 px) the realistic range (<= 80 px) is searched whole."""
+    if effect != "lens_scatter":
         return None
-    sigma, short = float(result.parameters["sigma_px"]), int(min(shape))
-    return {"sigma_px": sigma, "short_side_px": short} if sigma >= short else None
+    cap = HALO_RESOLVED_SHARE * float(min(shape))
+    box = [(0.0, p.unit(cap)) if p.name == "sigma_px" else (0.0, 1.0)
+           for p in free_params(effect)]
+    if all(hi >= 1.0 for _, hi in box):
+        return None
+    # a frame too small for the narrowest halo still gets a sliver to search in
+    return [(lo, max(hi, MIN_BOX_WIDTH)) for lo, hi in box]
+
+
+#: the narrowest unit-box interval searched
+MIN_BOX_WIDTH = 0.02
 
 
 #: a fitted parameter within this fraction of its range from an edge sits at the edge
