@@ -122,10 +122,10 @@ class Analysis:
         profile_words: the camera's profile in words, relative to the nominal cell.
         unexplained: candidates that fitted best but are not taken, with why (``case``: a
             parameter at the ``"edge"`` of its range, the model does not explain this; a fit
-            inside the ``"camera_window"``; a gain
-            of interreflection that does not explain the residual where its own correction
-            is large, ``"signature"``), and profile effects that ended at the edge of their
-            range (``"profile_edge"``), each with where the residual sits.
+            inside the ``"camera_window"``; a gain of interreflection that does not explain
+            the residual where its own correction is large, ``"signature"``), and profile
+            effects that ended at the edge of their range (``"profile_edge"``), each with
+            where the residual sits.
         frame_levels: "round:effect" -> the held-out frames' residual levels before and after
             a candidate of one offset per frame, judged on them (:mod:`.frame_levels`).
         concentration: "round:effect" -> the held-out residual where a concentrated
@@ -809,6 +809,8 @@ def window_box(effect: str) -> list[tuple[float, float]]:
 
 #: a halo's width is resolved on a frame up to this share of its short side (issue 13, item 2)
 HALO_RESOLVED_SHARE = 0.5
+#: the narrowest unit-box interval searched
+MIN_BOX_WIDTH = 0.02
 
 
 def resolved_box(effect: str, shape: tuple[int, int]) -> list[tuple[float, float]] | None:
@@ -829,10 +831,6 @@ def resolved_box(effect: str, shape: tuple[int, int]) -> list[tuple[float, float
         return None
     # a frame too small for the narrowest halo still gets a sliver to search in
     return [(lo, max(hi, MIN_BOX_WIDTH)) for lo, hi in box]
-
-
-#: the narrowest unit-box interval searched
-MIN_BOX_WIDTH = 0.02
 
 
 #: a fitted parameter within this fraction of its range from an edge sits at the edge
