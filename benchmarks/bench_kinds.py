@@ -307,7 +307,8 @@ def main() -> None:
     print(f"OpenMP waits: {info['openmp_wait']} (docs/performance.md: spinning is faster on an "
           "idle machine, far slower on a busy one)")
     print(f"nominal float32 peak: {peak['how']} = {peak['peak_gflops']} GFLOP/s; "
-          f"bf16 instructions: {peak['bf16']}")
+          f"bf16 instructions: {peak['bf16']}, int8 dot-product instructions: {peak['int8']}"
+          " (without them a reduced precision runs in a reference kernel)")
     results = {}
     for h, w in SIZES:
         label = f"{w}x{h}"

@@ -61,7 +61,7 @@ from tof_mpd_ros.correction import networks as networks_module
 from tof_mpd_ros.correction import pipeline as pipeline_module
 from tof_mpd_ros.correction.pipeline import PRECISIONS, CorrectionModel, correct
 from tof_mpd_ros.evaluation.components import g_probabilities
-from tof_mpd_ros.machine import cpu_model, cpuinfo
+from tof_mpd_ros.machine import PRECISION_FLAGS, cpu_model, cpuinfo
 
 # The reference path is a test oracle (test/oracles, not in the wheel).
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
@@ -109,7 +109,8 @@ def cpu_peak(n_cores: int) -> dict[str, Any]:
         simd += ", Zen 5"
     return {"cores": n_cores, "ghz": round(ghz, 3), "simd": simd, "flops_per_cycle": per_cycle,
             "peak_gflops": round(n_cores * ghz * per_cycle, 1),
-            "bf16": "avx512_bf16" in flags or "amx_bf16" in flags,
+            "bf16": bool(flags & set(PRECISION_FLAGS["bfloat16"])),
+            "int8": bool(flags & set(PRECISION_FLAGS["int8"])),
             "how": f"{n_cores} cores x {ghz:.3f} GHz (cpuinfo 'cpu MHz', nominal: a core "
                    f"boosting above it can exceed 100 %) x {per_cycle} float32 FLOPs/cycle = "
                    f"2 (FMA) x lanes x pipes for {simd}"}

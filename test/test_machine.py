@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from tof_mpd_ros.machine import cpu_model, cpuinfo, set_openmp_wait_policy
+from tof_mpd_ros.machine import cpu_model, cpuinfo, set_openmp_wait_policy, slow_precision
 
 # Two processors, as Linux writes them (tab before the colon, blank line between blocks).
 CPUINFO_TEXT = """processor\t: 0
@@ -80,3 +80,37 @@ def test_entry_points_choose_the_wait_policy_first(monkeypatch: pytest.MonkeyPat
     with pytest.raises(SystemExit):
         entry()
     assert os.environ["OMP_WAIT_POLICY"] == "PASSIVE"
+
+
+def _cpuinfo_with(tmp_path: Path, flags: str) -> Path:
+    path = tmp_path / "cpuinfo"
+    path.write_text(f"processor\t: 0\nmodel name\t: AMD EPYC 7B13\nflags\t\t: {flags}\n",
+                    encoding="utf-8")
+    return path
+
+
+def test_a_reduced_precision_without_its_instructions_is_slow(tmp_path: Path) -> None:
+    zen3 = _cpuinfo_with(tmp_path, "fpu sse2 avx avx2 fma")         # AVX2, no VNNI, no BF16
+    for precision, flag in (("int8", "avx512_vnni"), ("bfloat16", "avx512_bf16")):
+        why = slow_precision(precision, zen3)
+        assert why is not None and repr(precision) in why
+        assert flag in why and "AMD EPYC 7B13" in why and "float32" in why
+    assert slow_precision("float32", zen3) is None
+
+
+def test_a_precision_with_its_instructions_is_not(tmp_path: Path) -> None:
+    zen4 = _cpuinfo_with(tmp_path, "avx2 fma avx512f avx512_vnni avx512_bf16")
+    assert slow_precision("int8", zen4) is None
+    assert slow_precision("bfloat16", zen4) is None
+    sapphire = _cpuinfo_with(tmp_path, "avx2 avx512f amx_int8 amx_tile")   # AMX, no BF16 flag
+    assert slow_precision("int8", sapphire) is None
+    assert slow_precision("bfloat16", sapphire) is not None
+    # a flag's name inside another's must not count ("avx512_vnnix" is not avx512_vnni)
+    assert slow_precision("int8", _cpuinfo_with(tmp_path, "avx2 avx512_vnnix")) is not None
+
+
+def test_where_it_cannot_be_told_nothing_is_said(tmp_path: Path) -> None:
+    arm = tmp_path / "arm"
+    arm.write_text("processor\t: 0\nFeatures\t: fp asimd bf16 i8mm\n", encoding="utf-8")
+    assert slow_precision("int8", arm) is None
+    assert slow_precision("bfloat16", tmp_path / "absent") is None

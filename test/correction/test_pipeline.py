@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 import types
+import warnings
 
 import numpy as np
 import pytest
@@ -11,9 +12,11 @@ import torch
 
 import tof_mpd_ros.correction as correction_pkg
 from tof_mpd_ros.calibration import IntrinsicCalibration
+from tof_mpd_ros.correction import pipeline
 from tof_mpd_ros.correction.encoding import EncodingConfig
 from tof_mpd_ros.correction.pipeline import CorrectionModel, correct
 from tof_mpd_ros.errors import InputError
+from tof_mpd_ros.machine import SlowPrecisionWarning
 
 H, W = 20, 24
 
@@ -145,6 +148,27 @@ def test_bfloat16_precision_stays_close(geodesic_stub) -> None:
     assert np.abs(f32.range_mm - b16.range_mm).max() < 0.1     # mm
     with pytest.raises(InputError, match="precision"):
         correct(model, r, a, precision="float16")
+
+
+def test_a_slow_reduced_precision_is_said_once_per_process(geodesic_stub,
+                                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    model = _model()
+    r, a = _frame(7)
+    monkeypatch.setattr(pipeline, "slow_precision",
+                        lambda p: None if p == "float32" else f"{p} has no instructions here")
+    pipeline.warn_slow_precision.cache_clear()
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            correct(model, r, a, use_boundary=False)
+            for _ in range(2):
+                b16 = correct(model, r, a, use_boundary=False, precision="bfloat16")
+        said = [w for w in caught if issubclass(w.category, SlowPrecisionWarning)]
+        assert [str(w.message) for w in said] == ["bfloat16 has no instructions here"]
+        assert said[0].filename == __file__      # pointed at the caller, not the package
+        assert np.isfinite(b16.range_mm).any()   # said, and still corrected
+    finally:
+        pipeline.warn_slow_precision.cache_clear()
 
 
 @pytest.fixture(scope="module")

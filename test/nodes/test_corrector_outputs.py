@@ -59,6 +59,7 @@ from tof_mpd_ros.correction.fcn import FCNCorrectionModel  # noqa: E402
 from tof_mpd_ros.correction.pipeline import CorrectionModel, GeodesicParams, correct  # noqa: E402
 from tof_mpd_ros.correction.weights import load_weights, save_weights  # noqa: E402
 from tof_mpd_ros.image_encoding import image_to_array  # noqa: E402
+from tof_mpd_ros.machine import slow_precision  # noqa: E402
 from tof_mpd_ros.nodes import corrector_node  # noqa: E402
 from tof_mpd_ros.nodes.corrector_node import PUBLISHED, TOPICS, CorrectorNode  # noqa: E402
 from tof_mpd_ros.nodes.ros_messages import (  # noqa: E402
@@ -552,3 +553,26 @@ def test_weights_of_the_fcn_kind_load_at_run_time_and_publish_sigma_in_metres(
         rig.accept(weights_path=str(weights["a"]), input_convention="z", edge_low=-1.0)
     assert_depth_equals(rig.round_trip(("output",))["output"], offline(weights["a"]).depth_mm)
     assert rig.log.read_text().count("ignoring edge_low") == 1
+
+
+def test_a_reduced_precision_this_cpu_has_no_instructions_for_is_logged_once(
+        rig: Rig, weights: dict[str, Path]) -> None:
+    """Switched to bfloat16, the node corrects in it and, where this machine's CPU lacks the
+    bfloat16 instructions (a reference kernel, many times slower), says so in its log, once;
+    where it has them, says nothing. Back to float32, the outputs are float32's again."""
+    said = "precision 'bfloat16' without its instructions"
+    rig.accept(precision="bfloat16")
+    try:
+        out = rig.round_trip(("output",))         # answered: the swap and its warnings are done
+        expected = offline(weights["a"])
+        got_mm = decoded(out["output"]).astype(np.float64) * 1e3
+        np.testing.assert_array_equal(np.isnan(got_mm), np.isnan(expected.depth_mm))
+        assert np.nanmax(np.abs(got_mm - expected.depth_mm)) < 0.5     # mm: F in bfloat16
+        if slow_precision("bfloat16") is None:
+            assert said not in rig.log.read_text()
+        else:
+            assert rig.spin_until(lambda: said in rig.log.read_text(), 30.0)
+    finally:
+        rig.accept(precision="float32")
+    assert_depth_equals(rig.round_trip(("output",))["output"], expected.depth_mm)
+    assert rig.log.read_text().count(said) == (slow_precision("bfloat16") is not None)

@@ -44,8 +44,10 @@ MD-Test's pixels (docs/performance.md).
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import threading
+import warnings
 import weakref
 from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
@@ -56,6 +58,7 @@ import torch
 
 from ..calibration.intrinsic import IntrinsicCalibration, valid_measurement
 from ..errors import CalibrationError, InputError
+from ..machine import SlowPrecisionWarning, slow_precision
 from ..thread_pools import shared_pool
 from ..validation import check_array
 from .encoding import (
@@ -211,6 +214,16 @@ PRECISIONS = PATCH_PRECISIONS
 FCN_PRECISIONS = ("float32", "bfloat16")
 
 
+@functools.cache
+def warn_slow_precision(precision: str) -> str | None:
+    """One :class:`SlowPrecisionWarning` per process and precision where this CPU lacks the
+    precision's instructions; returns the reason (None: nothing to warn of)."""
+    reason = slow_precision(precision)
+    if reason is not None:
+        warnings.warn(reason, SlowPrecisionWarning, stacklevel=3)
+    return reason
+
+
 def check_precision(model: CorrectionModel | FCNCorrectionModel, precision: str) -> None:
     """Raise InputError unless ``model``'s kind runs in ``precision``."""
     if precision not in PRECISIONS:
@@ -268,7 +281,9 @@ def correct(
         precision: ``"float32"`` (default: matches the reference within 1e-3 mm),
             ``"bfloat16"`` (opt-in, faster first-layer GEMMs on AVX512-BF16/AMX CPUs, F off by
             a few hundredths of a mm) or ``"int8"`` (opt-in, the patch kind on the CPU: int8
-            first-layer GEMM on AVX512-VNNI/AMX-INT8; see :class:`~.networks.PatchNets`).
+            first-layer GEMM on AVX512-VNNI/AMX-INT8; see :class:`~.networks.PatchNets`). On
+            a CPU without those instructions a reduced precision is right but 6-24x slower
+            than float32: one :class:`SlowPrecisionWarning` per process says so.
         threads: worker threads on the CPU (default: torch's thread count, capped by the
             usable CPUs).
         geodesic: edge thresholds and geodesic filter constants to use instead of
@@ -287,6 +302,8 @@ def correct(
     """
     r, a = check_frame_pair(model.shape, range_mm, amplitude)
     check_precision(model, precision)
+    if torch.device(device).type == "cpu":
+        warn_slow_precision(precision)
     if isinstance(model, FCNCorrectionModel):
         return _correct_fcn(model, r, a, device, use_range_net, precision, fcn_engine)
     params = model.geodesic if geodesic is None else geodesic

@@ -13,8 +13,10 @@ reason and reported; the node keeps running.
 from __future__ import annotations
 
 import sys
+import warnings
 from collections.abc import Sequence
 
+from ..machine import SlowPrecisionWarning
 from .ros_runtime import node_main
 
 DESCRIPTION = (
@@ -27,6 +29,8 @@ DESCRIPTION = (
 
 
 def main(args: Sequence[str] | None = None) -> int:
+    # the node says this through its ROS logger (CorrectorNode._warn_adopted), not on stderr
+    warnings.simplefilter("ignore", SlowPrecisionWarning)
     return node_main("corrector", DESCRIPTION, "corrector_node", "CorrectorNode", args)
 
 

@@ -57,6 +57,7 @@ from ..correction.pipeline import CorrectionModel, GeodesicParams
 from ..correction.weights import load_weights
 from ..errors import InputError, TofMpdError
 from ..image_encoding import mm_to_depth
+from ..machine import slow_precision
 from .pairing import LatestQueueWorker, StampPairer, last_resort_report
 from .parameters import ParameterSpec as P
 from .parameters import declare, refuse_retired_parameters
@@ -105,7 +106,8 @@ PARAMETERS = (
       "1.3-1.4x faster end to end, docs/performance.md). Both keep R_F within 0.5 mm of "
       "float32 on >= 99.99 % of the pixels and the accuracy within 5 mm; the edge map flips "
       "at a few threshold pixels, which moves the final range by > 0.5 mm on 0.1-0.5 % of "
-      "the pixels.",
+      "the pixels. Without those instructions (AVX2 only) a reduced precision is right but "
+      "6-24x slower than float32, and the node logs a warning.",
       choices=("float32", "bfloat16", "int8")),
     P("fcn_engine", "auto", "Executor of the fcn kind's network: auto (ONNX Runtime on the "
       "CPU in float32 on 2+ threads, where it measured faster; torch otherwise), torch, or "
@@ -378,15 +380,20 @@ class CorrectorNode(Node):
             f"correcting {self.topics['depth']} + {self.topics['amplitude']} -> "
             f"{self.pub_depth.topic_name} ({_describe(self.stream, self.weights)}); "
             f"warm-up frame {warm_s * 1e3:.0f} ms")
-        self._warn_ignored(self.stream)
+        self._warn_adopted(self.stream)
 
-    def _warn_ignored(self, stream: DepthStreamCorrector) -> None:
-        """One warning when the correction just adopted ignores patch-only parameters."""
+    def _warn_adopted(self, stream: DepthStreamCorrector) -> None:
+        """Warnings about the correction just adopted: patch-only parameters it ignores, and a
+        reduced precision this CPU has no instructions for (right, but slower than float32)."""
         ignored = ignored_parameters(stream, self.params)
         if ignored:
             self.get_logger().warning(
                 f"ignoring {_assignments(ignored)}: weights of the fcn kind have no G and no "
                 "geodesic filter (these parameters apply to the patch kind only)")
+        if str(stream.device).split(":")[0] == "cpu":
+            slow = slow_precision(stream.precision)
+            if slow is not None:
+                self.get_logger().warning(slow)
 
     # -- parameters ---------------------------------------------------------------------
     def _check_change(self, parameters: list[Parameter]) -> str | None:
@@ -424,7 +431,7 @@ class CorrectorNode(Node):
             self.stream, self.weights = staged.stream, staged.weights
             self.get_logger().info(
                 f"now correcting with {_describe(staged.stream, staged.weights)}")
-            self._warn_ignored(staged.stream)
+            self._warn_adopted(staged.stream)
         if "sync_tolerance_s" in names:
             with self._pair_lock:
                 self.pairer.tolerance_ns = round(self.params["sync_tolerance_s"] * 1e9)
