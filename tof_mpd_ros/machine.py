@@ -77,7 +77,8 @@ def slow_precision(precision: str, path: Path = CPUINFO_PATH) -> str | None:
         return None
     where = " ".join(f"{k.split()[-1]} {info[k]}" for k in ("cpu family", "model") if k in info)
     return (f"precision {precision!r} without its instructions: this CPU "
-            f"({cpu_model(path)}{', ' + where if where else ''}) has none of "
+            f"({info.get('model name') or cpu_model(path)}{', ' + where if where else ''}) "
+            f"has none of "
             f"{', '.join(wanted)}, so its GEMMs and convolutions run in a "
             f"reference kernel, many times slower than float32 (measured on AMD Zen 3: "
             f"6-24x); use float32 here")
