@@ -19,6 +19,7 @@ view only, and nothing is flagged.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import numpy as np
@@ -26,7 +27,7 @@ from scipy import ndimage
 
 from ..frame import ToFFrame
 from ..pose import invert_pose, pose_m_to_mm, transform_points
-from .features import depth_edges
+from .features import EDGE_JUMP_MM, EDGE_JUMP_REL, depth_edges
 from .predict import median_albedo
 
 #: RMS log-ratio of a point's apparent albedo between views above which it is specular
@@ -37,6 +38,13 @@ SPECULAR_LOG_RATIO = 0.2
 SAME_SURFACE_MM = 5.0
 #: pixels this close to a reference depth edge (px) are not judged
 EDGE_MARGIN_PX = 1
+#: a surface of the reference ends where its normal turns by more than this to a neighbour
+CREASE_DEG = 30.0
+#: a smooth surface is specular as a whole when at least this share of its judged pixels is
+#: (specularity belongs to a material; see :func:`_whole_surfaces`), judged on at least
+#: ``MIN_JUDGED`` pixels
+SURFACE_SHARE = 0.3
+MIN_JUDGED = 16
 
 
 def _world_points(frame: ToFFrame) -> np.ndarray:
@@ -104,9 +112,75 @@ def view_dependence(frames: Sequence[ToFFrame]) -> list[np.ndarray]:
     return out
 
 
+def reference_surfaces(frame: ToFFrame) -> np.ndarray:
+    """(H, W) int32 label of the smooth surface of the reference each pixel lies on (1, 2, ...;
+    0 = on a depth edge, a crease or a hole): the connected pixels off every depth edge
+    (:func:`.features.depth_edges`) and every crease, where the reference's normal turns by
+    more than ``CREASE_DEG`` to a neighbour (a box's top and side, an object and the table it
+    stands on)."""
+    points = frame.intrinsics.backproject(frame.reference_mm)
+    normal = np.cross(np.gradient(points, axis=1), np.gradient(points, axis=0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    cos_limit = math.cos(math.radians(CREASE_DEG))
+    crease = np.zeros(frame.reference_mm.shape, dtype=bool)
+    for axis in (0, 1):
+        a = np.delete(normal, -1, axis=axis)
+        b = np.delete(normal, 0, axis=axis)
+        turn = ~(np.sum(a * b, axis=-1) >= cos_limit)   # NaN (a hole) counts as a turn
+        lo, hi = [(0, 0), (0, 0)], [(0, 0), (0, 0)]
+        lo[axis], hi[axis] = (1, 0), (0, 1)
+        crease |= np.pad(turn, lo) | np.pad(turn, hi)
+    smooth = np.isfinite(frame.reference_mm) & ~crease & ~depth_edges(frame.reference_mm)
+    labels, _ = ndimage.label(smooth)
+    return labels.astype(np.int32)
+
+
+def _whole_surfaces(flagged: np.ndarray, judged: np.ndarray, surfaces: np.ndarray,
+                    reference_mm: np.ndarray) -> np.ndarray:
+    """``flagged`` (H, W bool) grown to every surface of ``surfaces`` (labels) of which at
+    least ``SURFACE_SHARE`` of the judged pixels (``judged``, at least ``MIN_JUDGED``) are
+    flagged, then into the pixels beside them on the same surface that were not judged (edge
+    and crease bands; not across a depth jump to the table below)."""
+    n = int(surfaces.max())
+    if n == 0 or not flagged.any():
+        return flagged
+    index = np.arange(1, n + 1)
+    judged_n = ndimage.sum(judged, surfaces, index)
+    flagged_n = ndimage.sum(flagged & judged, surfaces, index)
+    specular = (judged_n >= MIN_JUDGED) & (flagged_n >= SURFACE_SHARE * judged_n)
+    grown = flagged | np.isin(surfaces, index[specular])
+    # the unjudged band on the surface's side of its edge: its edge pixel, a sloped pixel
+    # beside it, and the margin of the test
+    for _ in range(EDGE_MARGIN_PX + 2):
+        grown |= _continued(grown, reference_mm) & ~judged
+    return grown
+
+
+def _continued(mask: np.ndarray, reference_mm: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels with a 4-neighbour in ``mask`` on the same surface (no depth jump
+    between them, as :func:`.features.depth_edges` defines one)."""
+    out = np.zeros(mask.shape, dtype=bool)
+    r = np.asarray(reference_mm, dtype=np.float64)
+    for axis in (0, 1):
+        a, b = np.delete(r, -1, axis=axis), np.delete(r, 0, axis=axis)
+        with np.errstate(invalid="ignore"):
+            joined = np.abs(a - b) <= np.maximum(EDGE_JUMP_MM, EDGE_JUMP_REL * np.fmin(a, b))
+        lo, hi = [(0, 0), (0, 0)], [(0, 0), (0, 0)]
+        lo[axis], hi[axis] = (1, 0), (0, 1)
+        out |= np.pad(joined & np.delete(mask, -1, axis=axis), lo)   # from the pixel before
+        out |= np.pad(joined & np.delete(mask, 0, axis=axis), hi)    # from the pixel after
+    return out
+
+
 def specular_masks(frames: Sequence[ToFFrame],
                    threshold: float = SPECULAR_LOG_RATIO) -> list[np.ndarray]:
     """Per frame, (H, W) bool: pixels whose apparent albedo changes between views by more
-    than ``threshold`` (RMS log-ratio) — a specular surface, not a Lambertian one."""
-    return [np.nan_to_num(d, nan=0.0) > threshold
-            for d in view_dependence(frames)]
+    than ``threshold`` (RMS log-ratio) — a specular surface, not a Lambertian one — and the
+    rest of every smooth surface that is mostly such pixels (:func:`_whole_surfaces`)."""
+    out = []
+    for frame, d in zip(frames, view_dependence(frames), strict=True):
+        flagged = np.nan_to_num(d, nan=0.0) > threshold
+        out.append(_whole_surfaces(flagged, np.isfinite(d), reference_surfaces(frame),
+                                   frame.reference_mm))
+    return out
