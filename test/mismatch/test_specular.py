@@ -6,10 +6,9 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-
-from tof_mpd_ros.mismatch.analysis import analyse
 from scipy import ndimage
 
+from tof_mpd_ros.mismatch.analysis import analyse
 from tof_mpd_ros.mismatch.specular import (
     SPECULAR_LOG_RATIO,
     reference_surfaces,
