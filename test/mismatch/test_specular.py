@@ -10,7 +10,10 @@ from scipy import ndimage
 
 from tof_mpd_ros.mismatch.analysis import analyse
 from tof_mpd_ros.mismatch.specular import (
+    FALLOFF_PER_DEG,
     SPECULAR_LOG_RATIO,
+    incidence_deg,
+    incidence_falloff,
     reference_surfaces,
     specular_masks,
     view_dependence,
@@ -68,6 +71,27 @@ def test_a_surface_mostly_view_dependent_is_left_out_whole(sweep):
     assert mask[top].mean() > 0.99                 # the whole top, its rim included
     table = ~ndimage.binary_dilation(box, iterations=3) & np.isfinite(frames[2].range_mm)
     assert mask[table].mean() < 0.005              # not the table beside it
+
+
+def test_one_view_tells_a_lobe_from_a_texture(sweep):
+    """From one view: a table whose brightness follows a retro-reflection lobe (cos⁸ of the
+    incidence angle, a glossy finish) is specular; the same table under a texture (a fifth to
+    five times as bright, in 4-pixel patches) is not, nor is the unchanged one."""
+    frame = sweep({}, n_frames=2)[0]
+    table = ~_box(frame) & np.isfinite(frame.reference_mm)
+    theta = np.radians(incidence_deg(frame))
+    assert np.nanmax(np.degrees(theta)[table]) > 30.0       # the table spans the incidences
+    lobe = replace(frame, amplitude=np.where(table, np.cos(theta) ** 8, 1.0) * frame.amplitude)
+    rng = np.random.default_rng(1)
+    patches = np.kron(rng.uniform(np.log(0.2), np.log(5.0), (64, 64)), np.ones((4, 4)))
+    texture = np.exp(patches[:frame.range_mm.shape[0], :frame.range_mm.shape[1]])
+    textured = replace(frame, amplitude=np.where(table, texture, 1.0) * frame.amplitude)
+    assert np.nanmedian(incidence_falloff(lobe)[table]) < -FALLOFF_PER_DEG
+    for still in ([frame, frame], [textured, textured]):
+        assert not any(m.any() for m in specular_masks(still))
+    masks = specular_masks([lobe, lobe])
+    assert masks[0][table].mean() > 0.9
+    assert masks[0][_box(frame)].mean() < 0.05
 
 
 def test_the_reference_surfaces_end_at_depth_edges(sweep):
