@@ -24,8 +24,10 @@ left out 50 % by the pixel test, 94 % with whole surfaces; diffuse 0.0 % and 0.3
 of metal parts on the table), glossy plastic 0.1 % both, translucent 0 %; the built-in
 renderer's sweeps (seed 961, 4 sweeps) 0.0 % and ≤ 0.1 % of diffuse pixels.
 
-Needs the frames' poses and a moving camera: a static recording sees every point from one
-view only, and nothing is flagged.
+**From one view** (session 37, :func:`incidence_falloff`): the light sits at the camera, so a
+Lambertian surface's apparent albedo does not depend on the incidence angle, and a specular
+one dims as its normal turns from the camera. This needs no poses: a static recording, which
+sees every point from one view, is judged this way only.
 """
 
 from __future__ import annotations
