@@ -299,10 +299,10 @@ WORDED = [
      "  Spearman ρ with range 0.12, amplitude 7 -0.5, amplitude 1 nan"),
     ("mismatch_benchmark.txt", "per-effect top-1", _benchmark_table,
      "  case  truth                              selected                           ok  "
-     "rmse b/a/oracle (mm)  excess b/a (mm)  visible (mnats/px)  truth over answer "
-     "(mnats/px)\n"
+     "rmse b/a/oracle (mm)  excess b/a (mm)  visible (mnats/px)  refitted (mnats/px)  "
+     "truth over answer (mnats/px)\n"
      "   b/2  none                               wiggling                           n    "
-     "4.00/ 3.90/  n/a      n/a/ 0.90      n/a                 n/a\n\n"
+     "4.00/ 3.90/  n/a      n/a/ 0.90      n/a                 n/a                  n/a\n\n"
      "cases                                1\n"
      "f                                    0.3333\n"
      "per-effect top-1: \n"

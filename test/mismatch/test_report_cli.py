@@ -204,6 +204,7 @@ def test_benchmark_resume_runs_only_the_unanswered_cases(tmp_path, monkeypatch):
                                                     "location": {"global": {}}})
     monkeypatch.setattr(bm, "oracle_metrics", lambda path, label: dict(metrics))
     monkeypatch.setattr(bm, "effect_visibility", lambda path, label: {})
+    monkeypatch.setattr(bm, "refitted_visibility", lambda path, label: {})
     bm.run_benchmark(5, seed=3, out_dir=tmp_path)
     assert made == [0, 1, 2, 3, 4]
     (tmp_path / "results" / "case_003.oracle.json").unlink()  # interrupted before its oracle
@@ -272,6 +273,7 @@ def test_benchmark_shards_share_one_plan_and_merge_into_it(tmp_path, monkeypatch
                                                     "camera_profile": {"effects": []}})
     monkeypatch.setattr(bm, "oracle_metrics", lambda path, label: dict(metrics))
     monkeypatch.setattr(bm, "effect_visibility", lambda path, label: {})
+    monkeypatch.setattr(bm, "refitted_visibility", lambda path, label: {})
     a = bm.run_benchmark(5, seed=3, out_dir=tmp_path / "a", shard=Shard(0, 2))
     b = bm.run_benchmark(5, seed=3, out_dir=tmp_path / "b", shard=Shard(1, 2))
     assert [i for d, i, _ in made if d == "a"] == [0, 2, 4]
@@ -323,6 +325,48 @@ def test_top1_on_decidable_cases_leaves_out_the_ties_of_the_likelihood():
     assert s["decidable_effect_cases"] == 2          # the right answer and the 40 mnats miss
     assert s["top1_accuracy_decidable_effect_cases"] == 0.5
     assert s["misses_the_truth_fits_no_better"] == 2
+    assert s["effect_cases_with_refitted_visibility"] == 0
+
+
+def test_nameable_cases_count_only_effects_that_pay_over_the_refitted_camera():
+    """A miss whose truth leads the answer (40 mnats/px) but whose effect pays nothing over
+    the camera refitted from the truth is a tie of the model, not a nameable miss."""
+    def row(top1, margin, refitted):
+        return {"truth": ["hand_eye"], "selected": ["hand_eye"] if top1 else [], "top1": top1,
+                "both_found": None, "rmse_before_mm": 5.0, "rmse_after_mm": 4.0,
+                "excess_before_mm": 2.0, "excess_after_mm": 1.0, "oracle_rmse_after_mm": 4.0,
+                "parameter_error": {}, "visibility_mnats": 50.0, "truth_margin_mnats": margin,
+                "refitted_visibility_mnats": refitted}
+    s = summarise([row(True, 0.5, 3.0), row(False, 40.0, -1.8), row(False, 5.0, 30.0),
+                   row(False, 40.0, None)])
+    assert s["decidable_effect_cases"] == 3           # by the truth's margin
+    assert s["effect_cases_with_refitted_visibility"] == 3
+    assert s["nameable_effect_cases"] == 2            # the hit and the 30 mnats/px miss
+    assert s["top1_accuracy_nameable_effect_cases"] == 0.5
+    assert s["misses_the_camera_absorbs"] == 1
+
+
+def test_refitted_visibility_pays_for_a_drift_and_not_for_an_effect_that_is_absent(tmp_path,
+                                                                                    sweep):
+    """An 8 mm warm-up drift moves the frames' levels apart, which no camera profile takes:
+    it pays far over the threshold with the profile refitted from the truth. A time offset
+    claimed by a label but absent from the frames pays nothing (held at its claimed value it
+    costs; fitted from there it can only take noise, below its penalty)."""
+    from tof_mpd_ros.mismatch.analysis import MIN_SCORE
+    from tof_mpd_ros.mismatch.benchmark import refitted_visibility
+
+    params = {"max_mm": 8.0, "tau_frames": 5.0}
+    path = tmp_path / "drift.npz"
+    save_npz(path, sweep({"temperature_drift": params}))
+    drift = {"name": "temperature_drift", "params": params}
+    found = refitted_visibility(path, {"effects": [drift]})["temperature_drift"]
+    assert found["score_mnats"] > 5 * MIN_SCORE
+    assert found["score_mnats"] == max(found["held_mnats"], found["fitted_mnats"])
+    absent = {"name": "time_offset", "params": {"offset_ms": 30.0}}
+    claimed = refitted_visibility(path, {"effects": [drift, absent]})
+    assert claimed["time_offset"]["score_mnats"] < MIN_SCORE
+    assert claimed["time_offset"]["held_mnats"] < claimed["time_offset"]["fitted_mnats"]
+    assert refitted_visibility(path, {"effects": []}) == {}
 
 
 def test_the_verdict_says_when_the_model_leaves_something_unexplained():

@@ -789,6 +789,38 @@ def _rebased(p: Problem, config: ToFConfig) -> Problem:
 UNITS_DOUBT = CAMERA_WINDOWS[ALBEDO_EFFECT][1:]
 
 
+def refitted_margin(frames: Sequence[ToFFrame], config: ToFConfig, effect: str,
+                    reference_noise_mm: float = REFERENCE_NOISE_MM,
+                    fit_effect_too: bool = False) -> FitResult:
+    """``effect`` scored as the one-shot tool scores a candidate, but in the basin of
+    ``config`` (an oracle's: the true camera and effects): the camera's profile
+    (:data:`.profile.PROFILE_EFFECTS`) and ``effect`` descended jointly from ``config``
+    (:meth:`_Search._descend`, the level free), against the profile descended from ``config``
+    without ``effect``. Its ``score`` (mnats per held-out pixel, after the penalty) says
+    whether the data can name ``effect`` once the camera has taken what it can of it.
+
+    Why: the truth's margin over an answer (:func:`.benchmark.truth_margin`) mixes two
+    things: the effect, and the basin the answer's profile ended in. Measured on a hand–eye
+    case at 20 MHz (session 39): the truth led the answer by 37 mnats/px, yet from the truth the
+    hand–eye error gained 16 mnats/px over the refitted profile, below its 17 of penalty; what
+    the truth led by was the answer's profile (offset and wiggle at their limits)."""
+    problem, descriptors = build_problem(frames, config, reference_noise_mm,
+                                         specular=specular_masks(frames))
+    search = _Search(problem.judged(free_level=True), descriptors, {}, MIN_SCORE, MIN_T,
+                     None, refit=list(PROFILE_EFFECTS))
+    without, _ = search._descend(config.with_effect(effect, enabled=False), None, None)
+    search._rebase(without)
+    base_cost = search._train_cost(without)
+    if fit_effect_too:
+        # searched where the tool searches it (a halo as wide as the frame resolves)
+        with_effect, cost = search._descend(config, effect, resolved_box(effect, search.shape))
+    else:
+        with_effect, cost = search._descend(config, None, None)
+    return score_fit(search.problem, FitResult(
+        effect, with_effect, plain_params(with_effect, effect), len(free_params(effect)),
+        train_gain=base_cost - cost))
+
+
 def within_camera_window(result: FitResult) -> bool:
     """A fit the camera itself could explain (:data:`.profile.CAMERA_WINDOWS`): a multipath
     gain the unknown amplitude units allow (albedo and units are degenerate, and the indirect
