@@ -821,8 +821,8 @@ def refitted_margin(frames: Sequence[ToFFrame], config: ToFConfig, effect: str,
     Why: the truth's margin over an answer (:func:`.benchmark.truth_margin`) mixes two
     things: the effect, and the basin the answer's profile ended in. Measured on a hand–eye
     case at 20 MHz (session 39): the truth led the answer by 37 mnats/px, yet from the truth the
-    hand–eye error gained 16 mnats/px over the refitted profile, below its 17 of penalty; what
-    the truth led by was the answer's profile (offset and wiggle at their limits)."""
+    hand–eye error gained 17 mnats/px over the refitted profile, below its 18 of penalty; the
+    truth's lead was its camera's (its profile, its exact amplitude units), not the effect's."""
     problem, descriptors = build_problem(frames, config, reference_noise_mm,
                                          specular=specular_masks(frames))
     search = _Search(problem.judged(free_level=True), descriptors, {}, MIN_SCORE, MIN_T,
