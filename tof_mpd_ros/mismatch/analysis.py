@@ -123,9 +123,10 @@ class Analysis:
         unexplained: candidates that fitted best but are not taken, with why (``case``: a
             parameter at the ``"edge"`` of its range, the model does not explain this; a fit
             inside the ``"camera_window"``; a gain of interreflection that does not explain
-            the residual where its own correction is large, ``"signature"``), and profile
-            effects that ended at the edge of their range (``"profile_edge"``), each with
-            where the residual sits.
+            the residual where its own correction is large, ``"signature"``; significant with
+            the camera held but not with the camera refitted beside it, ``"confounded"``), and
+            profile effects that ended at the edge of their range (``"profile_edge"``), each
+            with where the residual sits.
         frame_levels: "round:effect" -> the held-out frames' residual levels before and after
             a candidate of one offset per frame, judged on them (:mod:`.frame_levels`).
         concentration: "round:effect" -> the held-out residual where a concentrated
@@ -433,6 +434,8 @@ class _Search:
                 box = boxes.get(name) or resolved_box(name, self.shape)
                 held[name] = fit_effect(self.problem, name, box=box)
                 results.append(self._with_refit(held[name], box))
+                _log.debug("round %d: %s scores %.1f with the camera held, %.1f refitted",
+                           len(self.rounds) + 1, name, held[name].score, results[-1].score)
                 if self.progress:
                     self.progress(name)
             if not results:
