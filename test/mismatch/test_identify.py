@@ -167,32 +167,3 @@ def test_hand_eye_is_not_named_at_one_pose(sweep):
     assert fitted.note == ""
     assert abs(fitted.parameters["rx_mrad"] - params["rx_mrad"]) < 2.0
     assert abs(fitted.parameters["tx_mm"] - params["tx_mm"]) < 1.5
-
-
-def test_a_candidate_the_refitted_camera_takes_back_is_reported_confounded():
-    """A hand–eye error worth 40 mnats/px with the camera held and 5 once the camera's wiggle
-    and offset are refitted beside it (session 39's 20 MHz case) is reported as confounded,
-    with the wiggle's amplitude, the parameter that moved furthest, first; a candidate
-    significant either way, or never, is not."""
-    from tof_mpd_ros.mismatch.analysis import MIN_SCORE, _Search
-
-    search = _Search(None, [], {}, MIN_SCORE, 3.0, None,  # type: ignore[arg-type]
-                     refit=["pixel_offset", "wiggling"])
-    nominal = ToFConfig.nominal()
-    bent = nominal.with_effect("wiggling", a1_mm=19.5).with_effect("pixel_offset",
-                                                                   offset_mean_mm=8.0)
-
-    def pair(effect: str, held: float, refitted: float) -> tuple[FitResult, FitResult]:
-        return (FitResult(effect, nominal, {}, 6, score=held, t_stat=8.0),
-                FitResult(effect, bent, {}, 6, score=refitted, t_stat=8.0))
-
-    pairs = [pair("hand_eye", 40.0, 5.0), pair("time_offset", 40.0, 30.0),
-             pair("lens_scatter", 4.0, 2.0)]
-    search._report_confounded([r for _, r in pairs], {h.effect: h for h, _ in pairs},
-                              MIN_SCORE, 5)
-    assert [(u["effect"], u["case"], u["round"]) for u in search.unexplained] == \
-        [("hand_eye", "confounded", 6)]
-    moved = search.unexplained[0]
-    assert "40.0 mnats/px" in moved["why"] and "cannot tell" in moved["why"]
-    assert "wiggling a1_mm 3 → 19.5" in moved["why"]
-    assert moved["why"].index("wiggling") < moved["why"].index("pixel_offset")

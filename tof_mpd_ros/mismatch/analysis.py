@@ -123,10 +123,9 @@ class Analysis:
         unexplained: candidates that fitted best but are not taken, with why (``case``: a
             parameter at the ``"edge"`` of its range, the model does not explain this; a fit
             inside the ``"camera_window"``; a gain of interreflection that does not explain
-            the residual where its own correction is large, ``"signature"``; significant with
-            the camera held but not with the camera refitted beside it, ``"confounded"``), and
-            profile effects that ended at the edge of their range (``"profile_edge"``), each
-            with where the residual sits.
+            the residual where its own correction is large, ``"signature"``), and profile
+            effects that ended at the edge of their range (``"profile_edge"``), each with
+            where the residual sits.
         frame_levels: "round:effect" -> the held-out frames' residual levels before and after
             a candidate of one offset per frame, judged on them (:mod:`.frame_levels`).
         concentration: "round:effect" -> the held-out residual where a concentrated
@@ -427,15 +426,15 @@ class _Search:
         used: list[str] = []
         while len(taken) < limit:
             k = len(self.rounds)
-            results, held = [], {}
+            results = []
             for name in candidates:
                 if name in used:
                     continue
                 box = boxes.get(name) or resolved_box(name, self.shape)
-                held[name] = fit_effect(self.problem, name, box=box)
-                results.append(self._with_refit(held[name], box))
+                held = fit_effect(self.problem, name, box=box)
+                results.append(self._with_refit(held, box))
                 _log.debug("round %d: %s scores %.1f with the camera held, %.1f refitted",
-                           len(self.rounds) + 1, name, held[name].score, results[-1].score)
+                           len(self.rounds) + 1, name, held.score, results[-1].score)
                 if self.progress:
                     self.progress(name)
             if not results:
@@ -451,8 +450,6 @@ class _Search:
                          else max(self.min_score, MIN_SCORE_LATER))
             best = self._first_explained(results, threshold, k, boxed=set(boxes))
             if best is None:
-                if not profile:
-                    self._report_confounded(results, held, threshold, k)
                 break
             used.append(best.effect)
             self.taken.append(best.effect)
@@ -501,23 +498,6 @@ class _Search:
             elif self._signature_holds(chosen, k, boxed):
                 return chosen
         return None
-
-    def _report_confounded(self, results: list[FitResult], held: dict[str, FitResult],
-                           threshold: float, k: int) -> None:
-        """Report (``unexplained``, case ``"confounded"``) each candidate of the last round that
-        was significant with the camera's profile held but not once the profile was refitted
-        beside it, with the profile parameters that moved most (:func:`moved_parameters`):
-        the camera and that physics trade the same residual in these frames, so they cannot
-        tell the two apart. Measured (session 39): a hand–eye error at 20 MHz that a 20 mm
-        wiggle and the offset took back, a halo an amplitude bias took."""
-        for r in results:
-            first = held.get(r.effect)
-            if (first is None or first.note or first is r
-                    or not _significant(first, threshold, self.min_t)
-                    or _significant(r, threshold, self.min_t)):
-                continue
-            self._unexplain("confounded", r.effect, k + 1, r.score, held_score=first.score,
-                            moved=moved_parameters(first.config, r.config, self.refit))
 
     def _signature_holds(self, r: FitResult, k: int, boxed: Collection[str]) -> bool:
         """Whether ``r``, if an effect of ``SIGNATURE_EFFECTS`` named as physics (not the
@@ -893,24 +873,6 @@ EDGE_FRACTION = 0.02
 #: inside; when that keeps this share of the training gain, the edge did not bind
 INNER_MARGIN = 0.1
 EDGE_SLACK = 0.97
-
-
-def moved_parameters(before: ToFConfig, after: ToFConfig, effects: Sequence[str],
-                     most: int = 2) -> list[dict[str, Any]]:
-    """The ``most`` parameters of ``effects`` that moved furthest from ``before`` to ``after``,
-    as shares of their realistic range: ``{"effect", "param", "before", "after"}``, furthest
-    first; none that moved less than 5 % of its range."""
-    moves = []
-    for effect in effects:
-        old, new = plain_params(before, effect), plain_params(after, effect)
-        for p in free_params(effect):
-            if p.periodic or p.name not in old or p.name not in new:
-                continue
-            share = abs(p.unit(new[p.name]) - p.unit(old[p.name]))
-            if share >= 0.05:
-                moves.append((share, {"effect": effect, "param": p.name,
-                                      "before": old[p.name], "after": new[p.name]}))
-    return [m for _, m in sorted(moves, key=lambda m: -m[0])[:most]]
 
 
 def parameters_at_edge(result: FitResult) -> dict[str, float]:
