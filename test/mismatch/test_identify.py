@@ -167,3 +167,20 @@ def test_hand_eye_is_not_named_at_one_pose(sweep):
     assert fitted.note == ""
     assert abs(fitted.parameters["rx_mrad"] - params["rx_mrad"]) < 2.0
     assert abs(fitted.parameters["tx_mm"] - params["tx_mm"]) < 1.5
+
+
+def test_a_lens_blur_beyond_the_cameras_window_is_named_with_all_of_it(sweep):
+    """A 1.0 px blur: the camera's profile takes the lens window at its 0.6 px limit, and the
+    scene round names the blur judged against the window released, so it is credited with
+    the whole blur (scoring over twice the window's share, not only the remainder beyond
+    0.6 px) and is no longer the profile's (session 39, ``profile_s122/1``)."""
+    analysis = analyse(sweep({"mixed_pixels": {"psf_sigma_px": 1.0}}))
+    fits = [(k, r) for k, rnd in enumerate(analysis.rounds) for r in rnd
+            if r.effect == "mixed_pixels"]
+    (k_window, window), (k_scene, scene) = fits[0], fits[-1]
+    assert k_window < k_scene
+    assert window.parameters["psf_sigma_px"] == pytest.approx(CAMERA_WINDOWS["mixed_pixels"][2])
+    assert analysis.selected == ["mixed_pixels"]
+    assert scene.score > 2.0 * window.score
+    assert 0.75 < analysis.parameters["mixed_pixels"]["psf_sigma_px"] < 1.25
+    assert "mixed_pixels" not in analysis.profile
