@@ -325,7 +325,7 @@ def test_top1_on_decidable_cases_leaves_out_the_ties_of_the_likelihood():
     assert s["decidable_effect_cases"] == 2          # the right answer and the 40 mnats miss
     assert s["top1_accuracy_decidable_effect_cases"] == 0.5
     assert s["misses_the_truth_fits_no_better"] == 2
-    assert s["effect_cases_with_refitted_visibility"] == 0
+    assert s["effect_cases_with_refitted_visibility"] == 2      # the two right answers
 
 
 def test_nameable_cases_count_only_effects_that_pay_over_the_refitted_camera():
@@ -338,11 +338,12 @@ def test_nameable_cases_count_only_effects_that_pay_over_the_refitted_camera():
                 "parameter_error": {}, "visibility_mnats": 50.0, "truth_margin_mnats": margin,
                 "refitted_visibility_mnats": refitted}
     s = summarise([row(True, 0.5, 3.0), row(False, 40.0, -1.8), row(False, 5.0, 30.0),
-                   row(False, 40.0, None)])
-    assert s["decidable_effect_cases"] == 3           # by the truth's margin
-    assert s["effect_cases_with_refitted_visibility"] == 3
-    assert s["nameable_effect_cases"] == 2            # the hit and the 30 mnats/px miss
-    assert s["top1_accuracy_nameable_effect_cases"] == 0.5
+                   row(False, 40.0, None), row(True, 20.0, None)])
+    assert s["decidable_effect_cases"] == 4           # by the truth's margin
+    # the unmeasured miss is left out; a right answer counts unmeasured, as nameable
+    assert s["effect_cases_with_refitted_visibility"] == 4
+    assert s["nameable_effect_cases"] == 3            # the two hits and the 30 mnats/px miss
+    assert s["top1_accuracy_nameable_effect_cases"] == 2 / 3
     assert s["misses_the_camera_absorbs"] == 1
 
 

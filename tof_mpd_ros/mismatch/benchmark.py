@@ -304,7 +304,8 @@ def _decidable(eff: list[dict[str, Any]]) -> dict[str, Any]:
     camera absorbs."""
     measured = [r for r in eff if r.get("truth_margin_mnats") is not None]
     decidable = [r for r in measured if r["top1"] or r["truth_margin_mnats"] >= MIN_SCORE]
-    refitted = [r for r in eff if r.get("refitted_visibility_mnats") is not None]
+    # a right answer shows its effect nameable without the measurement
+    refitted = [r for r in eff if r["top1"] or r.get("refitted_visibility_mnats") is not None]
     nameable = [r for r in refitted if r["top1"] or r["refitted_visibility_mnats"] >= MIN_SCORE]
     return {"effect_cases_with_truth_margin": len(measured),
             "decidable_effect_cases": len(decidable),
