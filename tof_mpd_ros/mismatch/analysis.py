@@ -826,15 +826,17 @@ UNITS_DOUBT = CAMERA_WINDOWS[ALBEDO_EFFECT][1:]
 def refitted_margin(frames: Sequence[ToFFrame], config: ToFConfig, effect: str,
                     reference_noise_mm: float = REFERENCE_NOISE_MM,
                     fit_effect_too: bool = False) -> FitResult:
-    """``effect`` scored as the one-shot tool scores a candidate, but in the basin of
-    ``config`` (an oracle's: the true camera and effects): the camera's profile
-    (:data:`.profile.PROFILE_EFFECTS`) and ``effect`` descended jointly from ``config``
-    (:meth:`_Search._descend`, the level free), against the profile descended from ``config``
-    without ``effect``. Its ``score`` (mnats per held-out pixel, after the penalty) says
-    whether the data can name ``effect`` once the camera has taken what it can of it.
+    """``effect`` scored as the one-shot tool scores a candidate, but from ``config`` (an
+    oracle's: the true camera and effects): the camera's profile
+    (:data:`.profile.PROFILE_EFFECTS`) descended from ``config`` (:meth:`_Search._descend`,
+    the level free) with ``effect`` held at its values there, or, ``fit_effect_too``, fitted
+    jointly with it (searched where the tool searches it), against the profile descended from
+    ``config`` without ``effect``. Its ``score`` (mnats per held-out pixel, after the penalty
+    of ``effect``'s parameters, as a candidate's) says whether the data can name ``effect``
+    once the camera has taken what it can of it.
 
     Why: the truth's margin over an answer (:func:`.benchmark.truth_margin`) mixes two
-    things: the effect, and the basin the answer's profile ended in. Measured on a hand–eye
+    things: the effect, and the camera the answer ended with. Measured on a hand–eye
     case at 20 MHz (session 39): the truth led the answer by 37 mnats/px, yet from the truth the
     hand–eye error gained 17 mnats/px over the refitted profile, below its 18 of penalty; the
     truth's lead was its camera's (its profile, its exact amplitude units), not the effect's."""
@@ -846,7 +848,7 @@ def refitted_margin(frames: Sequence[ToFFrame], config: ToFConfig, effect: str,
     search._rebase(without)
     base_cost = search._train_cost(without)
     if fit_effect_too:
-        # searched where the tool searches it (a halo as wide as the frame resolves)
+        # a halo only as wide as the frame resolves, as the tool searches it
         with_effect, cost = search._descend(config, effect, resolved_box(effect, search.shape))
     else:
         with_effect, cost = search._descend(config, None, None)
