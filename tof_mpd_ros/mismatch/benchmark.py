@@ -145,7 +145,7 @@ def refitted_visibility(frames_path: str | Path, label: dict[str, Any]
     with its tile ``t``). An effect below the tool's threshold here cannot be named by the
     per-pixel score from the truth's own basin; a miss of it is a tie of the model, however
     the truth's margin over the answer (:func:`truth_margin`) reads, which also counts the
-    basin the answer's profile ended in. Run only when scoring (it reads the label)."""
+    camera the answer ended with. Run only when scoring (it reads the label)."""
     if not label["effects"]:
         return {}
     frames = load_frames(frames_path)
