@@ -824,15 +824,15 @@ UNITS_DOUBT = CAMERA_WINDOWS[ALBEDO_EFFECT][1:]
 
 
 def refitted_margin(frames: Sequence[ToFFrame], config: ToFConfig, effect: str,
-                    reference_noise_mm: float = REFERENCE_NOISE_MM,
-                    fit_effect_too: bool = False) -> FitResult:
+                    reference_noise_mm: float = REFERENCE_NOISE_MM
+                    ) -> tuple[FitResult, FitResult]:
     """``effect`` scored as the one-shot tool scores a candidate, but from ``config`` (an
-    oracle's: the true camera and effects): the camera's profile
-    (:data:`.profile.PROFILE_EFFECTS`) descended from ``config`` (:meth:`_Search._descend`,
-    the level free) with ``effect`` held at its values there, or, ``fit_effect_too``, fitted
-    jointly with it (searched where the tool searches it), against the profile descended from
-    ``config`` without ``effect``. Its ``score`` (mnats per held-out pixel, after the penalty
-    of ``effect``'s parameters, as a candidate's) says whether the data can name ``effect``
+    oracle's: the true camera and effects), two ways: (held, fitted). The camera's profile
+    (:data:`.profile.PROFILE_EFFECTS`) is descended from ``config`` (:meth:`_Search._descend`,
+    the level free) with ``effect`` held at its values there, and fitted jointly with it
+    (searched where the tool searches it), each against the profile descended from ``config``
+    without ``effect``. A ``score`` (mnats per held-out pixel, after the penalty of
+    ``effect``'s parameters, as a candidate's) says whether the data can name ``effect``
     once the camera has taken what it can of it.
 
     Why: the truth's margin over an answer (:func:`.benchmark.truth_margin`) mixes two
@@ -847,14 +847,13 @@ def refitted_margin(frames: Sequence[ToFFrame], config: ToFConfig, effect: str,
     without, _ = search._descend(config.with_effect(effect, enabled=False), None, None)
     search._rebase(without)
     base_cost = search._train_cost(without)
-    if fit_effect_too:
-        # a halo only as wide as the frame resolves, as the tool searches it
-        with_effect, cost = search._descend(config, effect, resolved_box(effect, search.shape))
-    else:
-        with_effect, cost = search._descend(config, None, None)
-    return score_fit(search.problem, FitResult(
-        effect, with_effect, plain_params(with_effect, effect), len(free_params(effect)),
-        train_gain=base_cost - cost))
+    # a halo only as wide as the frame resolves, as the tool searches it
+    ends = (search._descend(config, None, None),
+            search._descend(config, effect, resolved_box(effect, search.shape)))
+    held, fitted = (score_fit(search.problem, FitResult(
+        effect, end, plain_params(end, effect), len(free_params(effect)),
+        train_gain=base_cost - cost)) for end, cost in ends)
+    return held, fitted
 
 
 def within_camera_window(result: FitResult) -> bool:

@@ -108,6 +108,15 @@ def oracle_metrics(frames_path: str | Path, label: dict[str, Any]) -> dict[str, 
                    max_effects=0).metrics
 
 
+def _true_model(frames: list[Any], effects: list[dict[str, Any]],
+                camera: dict[str, Any] | None) -> ToFConfig:
+    """The oracle's model of ``frames``: the true camera (``camera``: a label's ``"camera"``,
+    None = the nominal cell) and ``effects`` at their true values, in the true amplitude units
+    and at the recording's modulation frequency."""
+    truth, _ = adopt_recording(frames, truth_config(effects, camera), keep_units=True)
+    return truth
+
+
 def effect_visibility(frames_path: str | Path, label: dict[str, Any]) -> dict[str, Any]:
     """How visible each concealed effect is when known exactly: the held-out score (mnats per
     pixel after the complexity penalty, as the tool's ``MIN_SCORE`` is judged) and tile t of the
@@ -119,7 +128,7 @@ def effect_visibility(frames_path: str | Path, label: dict[str, Any]) -> dict[st
         return {}
     frames = load_frames(frames_path)
     camera = label.get("camera")
-    truth, _ = adopt_recording(frames, truth_config(label["effects"], camera), keep_units=True)
+    truth = _true_model(frames, label["effects"], camera)
     problem, _ = build_problem(frames, truth)
     masks = problem.masks("test")
     test = problem.frames_of("test")
@@ -127,7 +136,7 @@ def effect_visibility(frames_path: str | Path, label: dict[str, Any]) -> dict[st
     out: dict[str, Any] = {}
     for effect in label["effects"]:
         others = [e for e in label["effects"] if e is not effect]
-        without, _ = adopt_recording(frames, truth_config(others, camera), keep_units=True)
+        without = _true_model(frames, others, camera)
         gains = [problem.cost_map(i, without) - problem.cost_map(i, None) for i in test]
         gain = sum(float(np.nansum(g[masks[i]])) for g, i in zip(gains, test, strict=True))
         penalty = bic_penalty(len(free_params(effect["name"])), n)
@@ -149,14 +158,12 @@ def refitted_visibility(frames_path: str | Path, label: dict[str, Any]
     if not label["effects"]:
         return {}
     frames = load_frames(frames_path)
-    truth, _ = adopt_recording(frames, truth_config(label["effects"], label.get("camera")),
-                               keep_units=True)
+    truth = _true_model(frames, label["effects"], label.get("camera"))
     # no fit knows the camera pixel by pixel (as in :func:`truth_margin`)
     truth = truth.with_effect("pixel_offset", offset_std_mm=0.0, gain_std=0.0)
     out: dict[str, dict[str, float]] = {}
     for effect in label["effects"]:
-        held, fitted = (refitted_margin(frames, truth, effect["name"], fit_effect_too=fit)
-                        for fit in (False, True))
+        held, fitted = refitted_margin(frames, truth, effect["name"])
         best = max(held, fitted, key=lambda r: r.score)
         out[effect["name"]] = {"held_mnats": held.score, "fitted_mnats": fitted.score,
                                "score_mnats": best.score, "t": best.t_stat}
@@ -183,8 +190,7 @@ def truth_margin(frames_path: str | Path, label: dict[str, Any],
     if "config_after" not in result:
         return None
     frames = load_frames(frames_path)
-    truth, _ = adopt_recording(frames, truth_config(label["effects"], label.get("camera")),
-                               keep_units=True)
+    truth = _true_model(frames, label["effects"], label.get("camera"))
     # both without a drawn pixel pattern: no fit can know the camera's pixel by pixel, so
     # each gets the estimate the frames show (measured: with its exact pattern the truth led
     # an answer by 90 mnats/px that its own halo improved by 0.4)
@@ -227,7 +233,7 @@ def is_right(label: dict[str, Any], result: dict[str, Any]) -> bool:
 def _refitted_if_missed(frames_path: str | Path, label: dict[str, Any],
                         result: dict[str, Any]) -> dict[str, dict[str, float]]:
     """:func:`refitted_visibility` of a missed case; ``{}`` for a right answer, which shows its
-    effect nameable (the measure costs two profile descents per effect)."""
+    effect nameable (the measure costs three profile descents per effect)."""
     return {} if is_right(label, result) else refitted_visibility(frames_path, label)
 
 
