@@ -391,6 +391,27 @@ def test_the_whole_camera_is_refitted_when_it_pays_and_only_then(sweep, problem_
             assert held_out["found"] <= held_out["truth"] + 5e-3 < held_out["nominal"] - 0.1
 
 
+def test_a_scene_candidate_is_judged_over_the_camera_refitted_without_it(sweep, problem_of):
+    """A camera's 8 mm wiggle that the profile's rounds left at the nominal cell's 3 mm. Judged
+    over the profile as taken, a lens halo takes the wiggle's residual and is named (measured:
+    155 mnats/px). Judged as the one-shot scene rounds judge it, over the camera refitted without
+    it and refitted with it, the halo gains nothing the wiggle cannot give; it is not named, and
+    the round that names nothing puts the model and the refitted effects back as they were."""
+    frames = sweep({"wiggling": {"a1_mm": 8.0, "p1_rad": 2.0}})
+    for camera, named in (([], ["lens_scatter"]), (["wiggling"], [])):
+        search = _plain_search(frames, NOMINAL, problem_of)
+        search.problem = search.problem.judged(free_level=True)
+        search.profile_start, search.camera = NOMINAL, camera
+        before = search.problem
+        assert search.greedy(["lens_scatter"], 1) == named
+        score = search.rounds[0][0].score
+        if named:
+            assert score > 50.0
+        else:
+            assert score < 15.0
+            assert search.problem is before and search.refit == []
+
+
 def test_the_camera_profile_does_not_raise_the_scene_rounds_threshold(sweep, problem_of,
                                                                       monkeypatch):
     """The later rounds' threshold (MIN_SCORE_LATER, 20) applies once a scene effect is named,
