@@ -367,7 +367,7 @@ def _camera_first(search: _Search, candidates: Sequence[str]) -> list[str]:
     search.refit = profile
     search.converge_profile()
     search.try_whole_camera([*own, *windows])
-    search.camera = list(dict.fromkeys([*search.refit, *own, *windows]))
+    search.camera = [*own, *windows]
     return [c for c in candidates if c not in PROFILE_EFFECTS]
 
 
@@ -444,20 +444,7 @@ class _Search:
                 results.append(self._candidate(name, box, not profile, k + 1))
                 if self.progress:
                     self.progress(name)
-            if not results:
-                if before is not None:
-                    self.problem, self.refit = before
-                break
-            results = rank(results, self.problem)
-            self.rounds.append(results)
-            for r in results:
-                self.evidence[f"{k + 1}:{r.effect}"] = explain(self.problem, r,
-                                                               self.descriptors)
-            self._measure_concentration(results, k, boxed=set(boxes))
-            # once physics is named, the residual holds that fit's imperfections too
-            threshold = (self.min_score if not self.named
-                         else max(self.min_score, MIN_SCORE_LATER))
-            best = self._first_explained(results, threshold, k, boxed=set(boxes))
+            best = self._judge(results, k, set(boxes)) if results else None
             if best is None:
                 if before is not None:
                     # nothing named: the camera stays as the profile's rounds left it (a
@@ -485,6 +472,20 @@ class _Search:
                     self._name_beyond_window(best.effect)
             self._rebase(best.config)
         return taken
+
+    def _judge(self, results: list[FitResult], k: int,
+               boxed: Collection[str]) -> FitResult | None:
+        """Round ``k``'s ``results`` ranked and kept with their evidence; the candidate it
+        takes (:meth:`_first_explained`), or None."""
+        results = rank(results, self.problem)
+        self.rounds.append(results)
+        for r in results:
+            self.evidence[f"{k + 1}:{r.effect}"] = explain(self.problem, r, self.descriptors)
+        self._measure_concentration(results, k, boxed=boxed)
+        # once physics is named, the residual holds that fit's imperfections too
+        threshold = (self.min_score if not self.named
+                     else max(self.min_score, MIN_SCORE_LATER))
+        return self._first_explained(results, threshold, k, boxed=boxed)
 
     def _candidate(self, name: str, box: Sequence[tuple[float, float]] | None,
                    released: bool, round_: int) -> FitResult:
